@@ -1,0 +1,255 @@
+"""Static configuration (shapes, loop bounds) and traced parameters (everything a user sweeps).
+
+The split follows ``../shared/DESIGN.md``: a hashable :class:`SimConfig` fixes every shape and loop
+bound and is a compile-time constant; a :class:`Params` pytree holds the numbers a study may sweep
+(sensor, map model, motion, noise, planner weights). Changing a ``Params`` value never recompiles;
+a sweep over 256 settings is one ``vmap``.
+
+Presets carry the papers' values (``../shared/SPEC.md`` §1): ``li2020``, ``godoy_open``,
+``godoy_office``, ``toriz``, ``explore_bench``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import chex
+import jax.numpy as jnp
+import numpy as np
+
+
+class ConfigError(ValueError):
+  """An invalid setting, with a message naming it."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+  """Everything that fixes a shape or a loop bound. Hashable; a jit cache key.
+
+  Attributes:
+    height, width: grid shape in cells (from the world).
+    res: metres per cell (from the world).
+    n_beams: lidar rays per scan.
+    max_range_cells: static bound of the lidar range in cells; ``Params.r_max`` may be anything
+      up to ``max_range_cells * res``.
+    path_capacity: waypoints a plan may hold.
+    replan_every: motion steps between two batched planning rounds (planning is lockstep).
+    max_steps: the step budget of an episode (``timeout`` after it).
+    planner: registry name of the planner.
+    pose_noise: corrupt odometry and dead-reckon the estimate (SPEC §1); when False the estimate
+      is the true pose (the covariance is still propagated for planning).
+    max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
+    max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
+    dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
+    plan_chunk: robots per ``lax.map`` chunk when planning (DESIGN.md: small chunks beat one big vmap).
+  """
+
+  height: int
+  width: int
+  res: float
+  n_beams: int = 360
+  max_range_cells: int = 60
+  path_capacity: int = 256
+  replan_every: int = 8
+  max_steps: int = 2000
+  planner: str = "nearest_frontier"
+  pose_noise: bool = False
+  max_inflation_cells: int = 3
+  max_update_radius_cells: int = 30
+  dijkstra_max_sweeps: int = 512
+  plan_chunk: int = 4
+
+  def __post_init__(self):
+    for name in ("height", "width", "n_beams", "max_range_cells", "path_capacity", "replan_every",
+                 "max_steps", "dijkstra_max_sweeps", "plan_chunk", "max_update_radius_cells"):
+      value = getattr(self, name)
+      if not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    if self.max_inflation_cells < 0:
+      raise ConfigError(f"max_inflation_cells must be >= 0, got {self.max_inflation_cells}")
+    if not (math.isfinite(self.res) and self.res > 0):
+      raise ConfigError(f"res must be a positive number of metres, got {self.res!r}")
+
+  @property
+  def n_epochs(self) -> int:
+    """Planning rounds needed to cover ``max_steps``."""
+    return -(-self.max_steps // self.replan_every)
+
+
+@chex.dataclass(frozen=True)
+class Params:
+  """Traced numbers of the simulator; every leaf is a float32 scalar (or batched under vmap).
+
+  Units: metres, seconds, radians, log-odds. Planner weights live in ``planner`` (a dict of
+  scalars, so every planner can add its own without the simulator knowing them).
+  """
+
+  # lidar (SPEC §1)
+  r_max: Any = 15.0  # max range, m
+  fov: Any = math.radians(190.0)  # field of view, rad
+  range_noise: Any = 0.0  # std of Gaussian range noise, m
+  # belief (inverse sensor model, log-odds)
+  l_free: Any = -1.0
+  l_occ: Any = 2.0
+  l_min: Any = -5.0
+  l_max: Any = 5.0
+  p_free: Any = 0.35  # a cell with P(occ) below this is believed free
+  p_occ: Any = 0.65  # and above this, occupied
+  # entropy map (Li Eq 3, 5-7)
+  entropy_k: Any = 0.5  # smoothing k of Eq 3
+  alpha: Any = 1.5  # R_u = alpha * R_e
+  r_e: Any = 0.75  # effective radius R_e, m
+  # robot
+  v_max: Any = 0.25  # m/s
+  w_max: Any = 1.0  # rad/s
+  dt: Any = 0.4  # s
+  r_robot: Any = 0.2  # m
+  # localisation (Li Eq 16-17 and SPEC §1)
+  sigma_d: Any = 1.0
+  sigma_phi: Any = 1.0
+  sigma0: Any = 1e-4  # initial pose covariance, diag, m² and rad²
+  reloc_min_hits: Any = 20.0  # beams that must end on well-mapped occupied cells
+  reloc_entropy: Any = 0.3  # "well-mapped": cell entropy below this, nats
+  reloc_var_xy: Any = 1e-3  # measurement covariance R, m²
+  reloc_var_theta: Any = 1e-3  # rad²
+  # episode
+  coverage_goal: Any = 0.99  # fraction of reachable free area that counts as complete
+  # planner weights (name -> scalar)
+  planner: Any = dataclasses.field(default_factory=dict)
+
+
+PARAM_FIELDS = tuple(f.name for f in dataclasses.fields(Params) if f.name != "planner")
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+  """A paper's sensor and robot: parameter overrides and static sizes."""
+
+  name: str
+  description: str
+  params: dict
+  n_beams: int
+  replan_every: int = 8
+
+
+PRESETS: dict[str, Preset] = {
+    "li2020": Preset(
+        "li2020", "Li et al. 2020: 15 m, 190° lidar, 0.25 m/s",
+        dict(r_max=15.0, fov=math.radians(190.0), v_max=0.25, w_max=1.0), n_beams=190),
+    "godoy_open": Preset(
+        "godoy_open", "Godoy-Calvo et al. 2023, open world: 5.5 m, 270° lidar",
+        dict(r_max=5.5, fov=math.radians(270.0), v_max=0.5, w_max=1.5), n_beams=270),
+    "godoy_office": Preset(
+        "godoy_office", "Godoy-Calvo et al. 2023, office world: 5 m, 360° lidar",
+        dict(r_max=5.0, fov=math.radians(360.0), v_max=0.5, w_max=1.5), n_beams=360),
+    "toriz": Preset(
+        "toriz", "Toriz & Sánchez: 4 m, 240° lidar at 0.36°",
+        dict(r_max=4.0, fov=math.radians(240.0), v_max=0.3, w_max=1.0), n_beams=667),
+    "explore_bench": Preset(
+        "explore_bench",
+        "Explore-Bench grid simulator: 3.5 m, 360°, one cell per step, replanning every step",
+        dict(r_max=3.5, fov=math.radians(360.0), w_max=1e3, r_robot=0.1), n_beams=360,
+        replan_every=1),
+}
+
+
+def make_params(preset: str | None = None, *, res: float | None = None, planner: dict | None = None,
+                **overrides) -> Params:
+  """Builds a validated :class:`Params` from a preset plus overrides.
+
+  ``dt`` defaults to ``res / v_max`` (one cell of travel per step) when ``res`` is given and ``dt``
+  is not; the ``explore_bench`` preset moves one waypoint (orthogonal or diagonal) per step.
+  """
+  values: dict[str, Any] = {}
+  if preset is not None:
+    if preset not in PRESETS:
+      raise ConfigError(f"unknown preset {preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
+    values.update(PRESETS[preset].params)
+  unknown = set(overrides) - set(PARAM_FIELDS)
+  if unknown:
+    raise ConfigError(f"unknown parameter(s) {sorted(unknown)}; valid: {', '.join(PARAM_FIELDS)}")
+  values.update({k: v for k, v in overrides.items() if v is not None})
+  if res is not None and "dt" not in overrides:
+    v_max = values.get("v_max", Params.v_max)
+    if preset == "explore_bench":
+      values["v_max"] = math.sqrt(2.0) * res
+      values["dt"] = 1.0
+    else:
+      values["dt"] = res / v_max
+  params = Params(**{k: jnp.float32(v) for k, v in values.items()},
+                  planner={k: jnp.float32(v) for k, v in (planner or {}).items()})
+  return params
+
+
+def _as_float(params: Params) -> dict[str, float]:
+  return {k: float(np.asarray(getattr(params, k))) for k in PARAM_FIELDS}
+
+
+def validate_params(params: Params, config: SimConfig) -> None:
+  """Raises :class:`ConfigError` naming the first NaN or out-of-range value (host side, before compute).
+
+  Works on scalar or batched leaves (every element is checked).
+  """
+  def check(name, arr, ok, what):
+    arr = np.asarray(arr, dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+      raise ConfigError(f"parameter {name} is NaN or infinite: {arr.ravel()[:5]}")
+    if not np.all(ok(arr)):
+      bad = arr[~ok(arr)].ravel()[:5]
+      raise ConfigError(f"parameter {name} must be {what}, got {bad}")
+
+  p = params
+  positive = lambda a: a > 0
+  check("r_max", p.r_max, positive, "> 0")
+  max_r = config.max_range_cells * config.res
+  check("r_max", p.r_max, lambda a: a <= max_r + 1e-6,
+        f"<= max_range_cells * res = {max_r:.3g} m (raise SimConfig.max_range_cells)")
+  check("fov", p.fov, lambda a: (a > 0) & (a <= 2 * math.pi + 1e-6), "in (0, 2π]")
+  check("range_noise", p.range_noise, lambda a: a >= 0, ">= 0")
+  check("l_free", p.l_free, lambda a: a < 0, "< 0 (log-odds of a free observation)")
+  check("l_occ", p.l_occ, lambda a: a > 0, "> 0 (log-odds of an occupied observation)")
+  check("l_min", p.l_min, lambda a: a < 0, "< 0")
+  check("l_max", p.l_max, lambda a: a > 0, "> 0")
+  check("p_free", p.p_free, lambda a: (a > 0) & (a < 0.5), "in (0, 0.5)")
+  check("p_occ", p.p_occ, lambda a: (a > 0.5) & (a < 1), "in (0.5, 1)")
+  check("entropy_k", p.entropy_k, lambda a: (a >= 0) & (a < 1), "in [0, 1)")
+  check("alpha", p.alpha, positive, "> 0")
+  check("r_e", p.r_e, positive, "> 0")
+  check("v_max", p.v_max, positive, "> 0")
+  check("w_max", p.w_max, positive, "> 0")
+  check("dt", p.dt, positive, "> 0")
+  max_ru = config.max_update_radius_cells * config.res
+  check("alpha", np.asarray(p.alpha) * np.asarray(p.r_e), lambda a: a <= max_ru + 1e-6,
+        f"such that alpha * r_e <= max_update_radius_cells * res = {max_ru:.3g} m")
+  check("r_robot", p.r_robot, lambda a: a >= 0, ">= 0")
+  max_rr = config.max_inflation_cells * config.res
+  check("r_robot", p.r_robot, lambda a: a <= max_rr + 1e-6,
+        f"<= max_inflation_cells * res = {max_rr:.3g} m (raise SimConfig.max_inflation_cells)")
+  for name in ("sigma_d", "sigma_phi", "reloc_min_hits", "reloc_entropy"):
+    check(name, getattr(p, name), lambda a: a >= 0, ">= 0")
+  for name in ("sigma0", "reloc_var_xy", "reloc_var_theta"):
+    check(name, getattr(p, name), positive, "> 0")
+  check("coverage_goal", p.coverage_goal, lambda a: (a > 0) & (a <= 1), "in (0, 1]")
+  for name, value in p.planner.items():
+    check(f"planner.{name}", value, lambda a: np.ones_like(a, bool), "finite")
+
+
+def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
+               **overrides) -> SimConfig:
+  """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``."""
+  r_max = float(np.max(np.asarray(params.r_max)))
+  r_robot = float(np.max(np.asarray(params.r_robot)))
+  r_u = float(np.max(np.asarray(params.alpha) * np.asarray(params.r_e)))
+  kwargs = dict(
+      height=int(world_shape[0]), width=int(world_shape[1]), res=float(res),
+      max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
+      max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
+      max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
+  )
+  if preset is not None:
+    kwargs["n_beams"] = PRESETS[preset].n_beams
+    kwargs["replan_every"] = PRESETS[preset].replan_every
+  kwargs.update(overrides)
+  return SimConfig(**kwargs)

@@ -1,0 +1,108 @@
+"""Belief, entropy and neighbourhood kernels against closed forms, SciPy and plain NumPy loops."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+from conftest import EAGER_AND_JIT
+from jaxplore import mapping
+from jaxplore.config import make_params
+
+
+def test_entropy_closed_form():
+  p = np.linspace(0.0, 1.0, 101)
+  with np.errstate(divide="ignore", invalid="ignore"):
+    expected = np.nan_to_num(-p * np.log(p)) + np.nan_to_num(-(1 - p) * np.log(1 - p))
+  np.testing.assert_allclose(np.asarray(mapping.entropy_of_probability(p)), expected, atol=1e-6)
+  assert float(mapping.entropy_of_probability(0.5)) == np.float32(math.log(2))
+
+
+@EAGER_AND_JIT
+def test_entropy_of_logodds_matches_probability_form(transform):
+  l = np.linspace(-12, 12, 241).astype(np.float32)
+  p = 1 / (1 + np.exp(-l.astype(np.float64)))
+  expected = -p * np.log(p) - (1 - p) * np.log(1 - p)
+  np.testing.assert_allclose(np.asarray(transform(mapping.entropy_of_logodds)(l)), expected, atol=2e-6)
+
+
+@EAGER_AND_JIT
+def test_neighbour_count_is_3x3_convolution(transform):
+  rng = np.random.default_rng(0)
+  mask = rng.random((17, 23)) < 0.4
+  ours = np.asarray(transform(mapping.neighbour_count)(jnp.asarray(mask)))
+  ref = ndimage.convolve(mask.astype(int), np.ones((3, 3), int), mode="constant", cval=0)
+  np.testing.assert_array_equal(ours, ref)
+
+
+@EAGER_AND_JIT
+def test_inflate_matches_distance_transform(transform):
+  rng = np.random.default_rng(1)
+  mask = rng.random((30, 40)) < 0.03
+  for radius in (0.0, 1.0, 1.5, 2.3, 3.0):
+    ours = np.asarray(transform(lambda m, r: mapping.inflate(m, r, 3))(jnp.asarray(mask), jnp.float32(radius)))
+    # distance from each cell centre to the nearest set cell centre (outside the grid: unset)
+    ref = ndimage.distance_transform_edt(~mask) <= radius + 1e-6
+    np.testing.assert_array_equal(ours, ref, err_msg=f"radius {radius}")
+
+
+def test_frontier_matches_numpy_loop():
+  rng = np.random.default_rng(2)
+  for _ in range(5):
+    state = rng.integers(0, 3, size=(15, 18))  # 0 free, 1 occupied, 2 unknown
+    free, occ, unk = state == 0, state == 1, state == 2
+    ours = np.asarray(mapping.frontier(jnp.asarray(free), jnp.asarray(unk), jnp.asarray(occ)))
+    h, w = state.shape
+    ref = np.zeros_like(free)
+    occ_at = lambda r, c: not (0 <= r < h and 0 <= c < w) or occ[r, c]
+    for r in range(h):
+      for c in range(w):
+        if not free[r, c]:
+          continue
+        for dr in (-1, 0, 1):
+          for dc in (-1, 0, 1):
+            rr, cc = r + dr, c + dc
+            if (dr, dc) == (0, 0) or not (0 <= rr < h and 0 <= cc < w) or not unk[rr, cc]:
+              continue
+            if dr and dc and occ_at(r + dr, c) and occ_at(r, c + dc):
+              continue  # sealed diagonal
+            ref[r, c] = True
+    np.testing.assert_array_equal(ours, ref)
+
+
+def test_update_logodds_once_per_cell_and_clamped():
+  p = make_params()
+  l = jnp.zeros((3, 3), jnp.float32).at[0, 0].set(4.5)
+  observed = jnp.asarray([[2, 1, 0], [0, 2, 1], [0, 0, 0]], jnp.int8)
+  new = np.asarray(mapping.update_logodds(l, observed, p))
+  assert new[0, 0] == float(p.l_max)  # 4.5 + 2 clamped to 5
+  assert new[0, 1] == float(p.l_free) and new[1, 1] == float(p.l_occ) and new[2, 2] == 0.0
+
+
+def test_observation_grid_occupied_wins_and_outside_dropped():
+  rows = jnp.asarray([[0, 1, -1, 5]])
+  cols = jnp.asarray([[0, 1, 0, 0]])
+  grid = np.asarray(mapping.observation_grid((4, 4), rows, cols, jnp.asarray([1]), jnp.asarray([1])))
+  assert grid[0, 0] == 1 and grid[1, 1] == 2
+  assert grid.sum() == 3  # the -1 and 5 rows were dropped, not wrapped
+
+
+@EAGER_AND_JIT
+def test_entropy_map_update_is_eq3_inside_radius_only(transform):
+  rng = np.random.default_rng(3)
+  h, w = 25, 30
+  e = rng.uniform(0, math.log(2), (h, w)).astype(np.float32)
+  l = rng.normal(0, 2, (h, w)).astype(np.float32)
+  robot = np.array([12.3, 7.8], np.float32)
+  radius, k = 5.5, 0.3
+  ours = np.asarray(transform(lambda e_, l_, r_: mapping.update_entropy_map(e_, l_, r_, radius, k, 15))(
+      jnp.asarray(e), jnp.asarray(l), jnp.asarray(robot)))
+  ref = e.copy()
+  p = 1 / (1 + np.exp(-l.astype(np.float64)))
+  h_hat = -p * np.log(p) - (1 - p) * np.log(1 - p)
+  for i in range(h):
+    for j in range(w):
+      if (i + 0.5 - robot[0]) ** 2 + (j + 0.5 - robot[1]) ** 2 <= radius**2:
+        ref[i, j] = k * e[i, j] + (1 - k) * h_hat[i, j]
+  np.testing.assert_allclose(ours, ref, atol=1e-5)
