@@ -1,0 +1,351 @@
+"""Single-source shortest paths on 8-connected grids, without a priority queue.
+
+The graph: every cell is a node; the edge from a cell ``u`` to each of its 8 neighbours ``v``
+weighs ``step(u, v) * node_cost[v]`` (``step`` = 1 orthogonally, sqrt(2) diagonally), and
+``node_cost[v] = inf`` blocks ``v``. Callers scale ``node_cost`` by the grid resolution.
+
+Distances: min-plus (Bellman-Ford) relaxation scheduled as *cone sweeping*. A loop down the
+rows relaxes every cell of a row from the 3 cells of the row above (the cells of one row do not
+depend on each other, so a step is one vector operation), then a loop up the rows, then the
+same over the columns, left to right and right to left. One *round* of these 4 sweeps carries
+every shortest path at least two moves further, and all the way along any stretch of it whose
+moves agree with a sweep's direction, so open rooms converge in a handful of rounds; rounds
+repeat in a ``lax.while_loop`` until one changes nothing. Values only ever decrease, and every
+finite value is the float32 length of a real path.
+
+Predecessors are chosen once, from the converged distances: a cell points at a neighbour with
+a strictly smaller distance whose edge is tight. Strictly smaller distances make the field a
+tree whatever the rounding. Cells with no such neighbour sit on a *plateau* of equal distances
+(reached through zero-cost cells, or edges too cheap to move a float32 sum); they are attached
+by a breadth-first search over tight equal-distance edges, each new cell pointing at one that
+was attached in an earlier step, which keeps the tree acyclic. Maps without zero costs never
+enter that search.
+
+Performance notes (XLA:CPU, measured by ``experiments/bench_dijkstra.py``):
+
+* A chunk of C grids is solved together in a ``[H + 2, W + 2, C]`` layout: the C maps are
+  interleaved in the minor axis, framed by a border of blocked cells so that neighbour reads
+  are plain slices. The sweeps update rows in place (``fori_loop`` + ``dynamic_update_slice``):
+  a ``lax.scan`` producing new rows was 2-3x slower per row, and tracking predecessor codes
+  during the sweeps tripled the cost of each row step.
+* Column sweeps run on the transposed array; with C minor, that transpose moves C-float blocks
+  and is several times cheaper than transposing a ``[C, H, W]`` stack.
+* Unrolling the row loop makes XLA copy the whole array every step: keep ``unroll=1``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+_SQRT2 = math.sqrt(2.0)
+
+# Neighbour offsets (dr, dc) from a cell to a candidate predecessor, in order of preference.
+_NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+# An edge u -> v counts as tight when dist[u] + w(u, v) <= dist[v] * (1 + _TIGHT_RTOL). The
+# predecessor pass recomputes the sums the sweeps made; XLA may contract one of them into a
+# fused multiply-add and the other not, so allow a few float32 ulps.
+_TIGHT_RTOL = 2.0**-20
+
+DEFAULT_CHUNK = 4
+
+
+class ShortestPaths(NamedTuple):
+  """Single-source shortest paths on one grid (fields gain a leading axis when batched).
+
+  Attributes:
+    dist: f32[H, W]; path cost from the source; inf where unreachable; 0 at the source.
+    pred: i32[H, W]; flat index ``r * W + c`` of each cell's predecessor on a shortest path;
+      -1 at the source and at unreachable cells.
+    sweeps: i32[]; rounds of the 4 sweeps run, counting the last one, which found nothing to
+      improve when ``converged``.
+    converged: bool[]; False if ``max_sweeps`` rounds ran out before a fixed point (then
+      ``dist`` is an upper bound and ``pred`` may be -1 at reachable cells).
+  """
+
+  dist: jax.Array
+  pred: jax.Array
+  sweeps: jax.Array
+  converged: jax.Array
+
+
+def default_max_sweeps(height: int, width: int) -> int:
+  """The default bound on rounds for an H x W grid: ``H * W // 4 + 2``.
+
+  Each round moves every shortest path at least two moves on (two consecutive moves are
+  never both against the order of the 4 sweeps), and a shortest path over positive costs has
+  fewer than ``H * W / 2`` moves, so this bound is a safety net that real maps do not reach:
+  room-like 256 x 256 worlds take ~5 rounds and 256 x 256 mazes with 3-cell corridors ~150.
+  """
+  return height * width // 4 + 2
+
+
+def _sweep(dist: jax.Array, cost: jax.Array, reverse: bool) -> jax.Array:
+  """One sweep over the lines (axis 0) of a framed ``[N + 2, M + 2, C]`` array, in place.
+
+  Line ``i`` (1..N) becomes ``min(itself, relaxation from the 3 neighbours in line i - 1)``
+  (``i + 1`` when ``reverse``), using the line already updated by this sweep.
+  """
+  num_lines, line_length = dist.shape[0] - 2, dist.shape[1] - 2
+  diag_factor = jnp.float32(_SQRT2)
+
+  def relax_line(step, dist):
+    line = num_lines - step if reverse else step + 1
+    previous = lax.dynamic_index_in_dim(dist, line + 1 if reverse else line - 1, keepdims=False)
+    old = lax.dynamic_index_in_dim(dist, line, keepdims=False)[1 : line_length + 1]
+    step_cost = lax.dynamic_index_in_dim(cost, line, keepdims=False)[1 : line_length + 1]
+    straight = previous[1 : line_length + 1] + step_cost
+    # min before adding is exact: rounding is monotone, so fl(min(a, b) + x) = min(fl(a + x), fl(b + x)).
+    diagonal = jnp.minimum(previous[:line_length], previous[2:]) + step_cost * diag_factor
+    new = jnp.minimum(old, jnp.minimum(straight, diagonal))
+    return lax.dynamic_update_slice(dist, new[None], (line, 1, 0))
+
+  return lax.fori_loop(0, num_lines, relax_line, dist)
+
+
+def _tight_predecessors(dist: jax.Array, node_cost: jax.Array, source: jax.Array) -> jax.Array:
+  """Predecessors from converged distances.
+
+  Args:
+    dist: f32[C, H + 2, W + 2]; converged distances in an inf frame.
+    node_cost: f32[C, H, W].
+    source: i32[C, 2].
+
+  Returns:
+    i32[C, H, W] flat predecessor indices, -1 at sources and unreachable cells.
+  """
+  num_maps, height, width = node_cost.shape
+  here = dist[:, 1:-1, 1:-1]
+  diag_cost = node_cost * jnp.float32(_SQRT2)
+  tight_bound = here + here * jnp.float32(_TIGHT_RTOL)
+  rows = lax.broadcasted_iota(jnp.int32, here.shape, 1)
+  cols = lax.broadcasted_iota(jnp.int32, here.shape, 2)
+  flat = rows * width + cols
+  is_source = (rows == source[:, 0, None, None]) & (cols == source[:, 1, None, None])
+
+  def neighbour_dist(dr, dc):
+    return dist[:, 1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
+
+  def arrival(dr, dc):
+    return neighbour_dist(dr, dc) + (diag_cost if dr and dc else node_cost)
+
+  # Any tight edge from a strictly closer neighbour will do; the first one found is kept.
+  pred = jnp.full(here.shape, -1, jnp.int32)
+  for dr, dc in reversed(_NEIGHBOURS):
+    tight_and_closer = (neighbour_dist(dr, dc) < here) & (arrival(dr, dc) <= tight_bound)
+    pred = jnp.where(tight_and_closer, flat + (dr * width + dc), pred)
+  unreachable = jnp.isinf(here)
+  pred = jnp.where(is_source | unreachable, -1, pred)
+  attached = (pred >= 0) | is_source | unreachable
+
+  # Plateaus: grow the tree over tight equal-distance edges, one layer per step.
+  def grow(carry):
+    pred, attached, _ = carry
+    framed = jnp.pad(attached, ((0, 0), (1, 1), (1, 1)))
+    new_pred = pred
+    for dr, dc in reversed(_NEIGHBOURS):
+      neighbour_attached = framed[:, 1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
+      flat_tight = (neighbour_dist(dr, dc) <= here) & (arrival(dr, dc) <= tight_bound)
+      new_pred = jnp.where(~attached & neighbour_attached & flat_tight, flat + (dr * width + dc), new_pred)
+    newly_attached = (new_pred >= 0) & ~attached
+    return new_pred, attached | newly_attached, jnp.any(newly_attached)
+
+  pred, _, _ = lax.while_loop(lambda carry: carry[2], grow, (pred, attached, ~jnp.all(attached)))
+  return pred
+
+
+def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> ShortestPaths:
+  """Shortest paths for C grids at once; fields of the result have a leading axis C."""
+  num_maps, height, width = node_cost.shape
+  inf = jnp.float32(jnp.inf)
+  framed_cost = jnp.pad(node_cost.transpose(1, 2, 0), ((1, 1), (1, 1), (0, 0)), constant_values=inf)
+  # The barrier keeps XLA from fusing the interleaving transpose into every reader.
+  cost_rows = lax.optimization_barrier(framed_cost)
+  cost_cols = cost_rows.transpose(1, 0, 2)
+  rows = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 0)
+  cols = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 1)
+  at_source = (rows == source[:, 0] + 1) & (cols == source[:, 1] + 1)
+  dist = jnp.where(at_source, jnp.float32(0), inf)
+
+  def one_round(dist):
+    dist = _sweep(dist, cost_rows, reverse=False)
+    dist = _sweep(dist, cost_rows, reverse=True)
+    dist = dist.transpose(1, 0, 2)
+    dist = _sweep(dist, cost_cols, reverse=False)
+    dist = _sweep(dist, cost_cols, reverse=True)
+    return dist.transpose(1, 0, 2)
+
+  def not_done(carry):
+    _, rounds, active, _ = carry
+    return jnp.any(active) & (rounds < max_sweeps)
+
+  def body(carry):
+    dist, rounds, active, sweeps = carry
+    new_dist = one_round(dist)
+    # Distances never increase, so "changed" means "some cell improved". A grid that has
+    # converged stays put while the others in its chunk finish.
+    changed = jnp.any(new_dist < dist, axis=(0, 1))
+    return new_dist, rounds + 1, active & changed, sweeps + active.astype(jnp.int32)
+
+  init = (dist, jnp.int32(0), jnp.ones((num_maps,), bool), jnp.zeros((num_maps,), jnp.int32))
+  dist, _, active, sweeps = lax.while_loop(not_done, body, init)
+  dist = lax.optimization_barrier(dist.transpose(2, 0, 1))
+  pred = _tight_predecessors(dist, node_cost, source)
+  return ShortestPaths(dist=dist[:, 1:-1, 1:-1], pred=pred, sweeps=sweeps, converged=~active)
+
+
+def shortest_paths_batched(
+    node_cost: jax.Array,
+    source: jax.Array,
+    *,
+    chunk: int = DEFAULT_CHUNK,
+    max_sweeps: int | None = None,
+) -> ShortestPaths:
+  """``shortest_paths`` for a batch of grids: a ``lax.map`` over chunks of ``chunk`` grids.
+
+  Small chunks beat one pass over the whole batch on CPU: a chunk stops as soon as its own
+  slowest grid converges, and its working set stays in cache. A batch that is not a multiple
+  of ``chunk`` is padded with fully blocked grids (they converge in one round) that are
+  dropped from the result.
+
+  Args:
+    node_cost: f32[B, H, W]; as in ``shortest_paths``.
+    source: i32[B, 2]; one (row, col) source per grid.
+    chunk: static number of grids solved together (capped at B).
+    max_sweeps: static bound on rounds per grid; None = ``default_max_sweeps(H, W)``.
+
+  Returns:
+    A ``ShortestPaths`` whose fields have a leading batch axis B.
+  """
+  node_cost = jnp.asarray(node_cost, jnp.float32)
+  source = jnp.asarray(source, jnp.int32)
+  batch, height, width = node_cost.shape
+  if max_sweeps is None:
+    max_sweeps = default_max_sweeps(height, width)
+  chunk = max(1, min(chunk, batch))
+  num_chunks = -(-batch // chunk)
+  padding = num_chunks * chunk - batch
+  if padding:
+    node_cost = jnp.concatenate([node_cost, jnp.full((padding, height, width), jnp.inf, jnp.float32)])
+    source = jnp.concatenate([source, jnp.zeros((padding, 2), jnp.int32)])
+  result = lax.map(
+      lambda args: _solve_chunk(*args, max_sweeps=max_sweeps),
+      (node_cost.reshape(num_chunks, chunk, height, width), source.reshape(num_chunks, chunk, 2)),
+  )
+  return jax.tree.map(lambda x: x.reshape((num_chunks * chunk,) + x.shape[2:])[:batch], result)
+
+
+@functools.lru_cache(maxsize=None)
+def _single_grid_solver(max_sweeps: int):
+  """``shortest_paths`` for one grid, whose ``vmap`` becomes ``shortest_paths_batched``."""
+
+  @jax.custom_batching.custom_vmap
+  def solve(node_cost, source):
+    result = _solve_chunk(node_cost[None], source[None], max_sweeps)
+    return jax.tree.map(lambda x: x[0], result)
+
+  @solve.def_vmap
+  def solve_batch(axis_size, in_batched, node_cost, source):
+    cost_batched, source_batched = in_batched
+    if not cost_batched:
+      node_cost = jnp.broadcast_to(node_cost, (axis_size,) + node_cost.shape)
+    if not source_batched:
+      source = jnp.broadcast_to(source, (axis_size,) + source.shape)
+    result = shortest_paths_batched(node_cost, source, max_sweeps=max_sweeps)
+    return result, ShortestPaths(True, True, True, True)
+
+  return solve
+
+
+def shortest_paths(
+    node_cost: jax.Array,
+    source: jax.Array,
+    *,
+    max_sweeps: int | None = None,
+) -> ShortestPaths:
+  """Shortest paths from one source cell over an 8-connected grid.
+
+  Written for one grid; ``jax.vmap`` of it runs ``shortest_paths_batched`` (chunks of
+  ``DEFAULT_CHUNK`` grids), which is several times faster on CPU than batching the loops.
+
+  Args:
+    node_cost: f32[H, W]; the cost of entering each cell per unit step, >= 0 (zeros allowed);
+      inf = blocked. The edge u -> v weighs ``node_cost[v]`` orthogonally and
+      ``sqrt(2) * node_cost[v]`` diagonally.
+    source: i32[2]; (row, col) of the source, inside the grid. It gets distance 0 whatever its
+      own cost, so a robot standing on a blocked cell still plans from it.
+    max_sweeps: static bound on rounds of the 4 sweeps; None = ``default_max_sweeps(H, W)``.
+
+  Returns:
+    A ``ShortestPaths`` with dist f32[H, W], pred i32[H, W], sweeps i32[], converged bool[].
+  """
+  node_cost = jnp.asarray(node_cost, jnp.float32)
+  source = jnp.asarray(source, jnp.int32)
+  if max_sweeps is None:
+    max_sweeps = default_max_sweeps(*node_cost.shape)
+  return _single_grid_solver(int(max_sweeps))(node_cost, source)
+
+
+def extract_path(
+    pred: jax.Array,
+    goal: jax.Array,
+    capacity: int,
+    *,
+    source: jax.Array | None = None,
+) -> tuple[jax.Array, jax.Array]:
+  """The cells of the shortest path from the source to ``goal``, source first.
+
+  Walks the predecessor field back from the goal into a ring buffer of ``capacity`` cells, so
+  a path longer than ``capacity`` keeps its first ``capacity`` cells (the ones a robot follows
+  next). The walk stops after H * W cells, so a corrupted (cyclic) ``pred`` cannot hang it.
+
+  Args:
+    pred: i32[H, W]; the ``pred`` field of ``ShortestPaths``.
+    goal: i32[2]; (row, col) of the goal.
+    capacity: static maximum number of cells returned.
+    source: optional i32[2]; the source the field was computed from. With it, a walk that
+      does not end at ``source`` (unreachable goal, corrupted field) gives length 0. Without
+      it, ``pred`` alone cannot tell the source from an unreachable cell (both have pred -1):
+      a goal with pred -1 counts as the source if some cell points at it, so the one case it
+      gets wrong is goal == source when no neighbour of the source is reachable.
+
+  Returns:
+    cells: i32[capacity, 2]; (row, col) of the path cells, source first; rows at and past
+      ``length`` are -1.
+    length: i32[]; number of valid cells: min(cells on the path, capacity); 0 if unreachable.
+  """
+  height, width = pred.shape
+  pred_flat = jnp.asarray(pred, jnp.int32).reshape(-1)
+  goal = jnp.asarray(goal, jnp.int32)
+  goal_flat = goal[0] * width + goal[1]
+
+  def not_done(carry):
+    cell, visited, _ = carry
+    return (cell >= 0) & (visited < height * width)
+
+  def walk_back(carry):
+    cell, visited, ring = carry
+    ring = ring.at[visited % capacity].set(cell)
+    return pred_flat[cell], visited + 1, ring
+
+  ring = jnp.full((capacity,), -1, jnp.int32)
+  cell, visited, ring = lax.while_loop(not_done, walk_back, (goal_flat, jnp.int32(0), ring))
+  root = ring[(visited - 1) % capacity]
+  if source is None:
+    # After a single visit the goal itself has pred -1: it is the source or unreachable.
+    root_is_source = (visited > 1) | jnp.any(pred_flat == goal_flat)
+  else:
+    source = jnp.asarray(source, jnp.int32)
+    root_is_source = root == source[0] * width + source[1]
+  length = jnp.where((cell < 0) & root_is_source, jnp.minimum(visited, capacity), 0)
+  # The ring holds the last `capacity` cells visited; visit i is path cell visited - 1 - i.
+  position = jnp.arange(capacity, dtype=jnp.int32)
+  flat = ring[(visited - 1 - position) % capacity]
+  cells = jnp.stack([flat // width, flat % width], axis=-1)
+  return jnp.where((position < length)[:, None], cells, -1), length

@@ -1,0 +1,8 @@
+"""Planners, one module per paper, all behind :mod:`jaxplore.planners.base`'s interface."""
+
+from jaxplore.planners import frontier  # noqa: F401  (registers nearest_frontier)
+from jaxplore.planners.base import (BeliefView, Plan, PlannerSpec, RobotView, get_planner,
+                                    planner_names, register)
+
+__all__ = ["BeliefView", "Plan", "PlannerSpec", "RobotView", "get_planner", "planner_names",
+           "register"]
