@@ -1,0 +1,122 @@
+"""The ``jaxplore`` command: ``run``, ``maps``, ``plot``.
+
+A thin argparse layer over :func:`jaxplore.runner.run` and friends (STYLE.md practice 15). JAX is
+imported only after the arguments are parsed, so ``--devices`` can set how many host devices XLA
+exposes (XLA:CPU runs a loop body on one thread; two devices use both cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def _key_values(items, what):
+  out = {}
+  for item in items or []:
+    if "=" not in item:
+      raise SystemExit(f"jaxplore: error: {what} takes NAME=VALUE, got {item!r}")
+    name, value = item.split("=", 1)
+    try:
+      out[name.strip()] = float(value)
+    except ValueError:
+      raise SystemExit(f"jaxplore: error: {what} {name}: {value!r} is not a number") from None
+  return out
+
+
+def _set_devices(n):
+  n = n or os.cpu_count() or 1
+  flags = os.environ.get("XLA_FLAGS", "")
+  if "xla_force_host_platform_device_count" not in flags and n > 1:
+    os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
+
+
+def build_parser() -> argparse.ArgumentParser:
+  parser = argparse.ArgumentParser(prog="jaxplore", description=__doc__.splitlines()[0])
+  sub = parser.add_subparsers(dest="command", required=True)
+
+  run = sub.add_parser("run", help="run a batch of robots exploring a world")
+  run.add_argument("--world", default="office", help="built-in world name or map_server YAML path")
+  run.add_argument("--planner", default="nearest_frontier")
+  run.add_argument("--robots", type=int, default=16)
+  run.add_argument("--seed", type=int, default=0)
+  run.add_argument("--preset", default="li2020", help="sensor/robot preset")
+  run.add_argument("--res", type=float, default=None, help="planning resolution, m/cell")
+  run.add_argument("--start", default=None, help="x,y[,theta] start for every robot (default: random)")
+  run.add_argument("--max-steps", type=int, default=None)
+  run.add_argument("--replan-every", type=int, default=None)
+  run.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a parameter")
+  run.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
+                   help="override a planner weight")
+  run.add_argument("--pose-noise", action="store_true", help="noisy odometry, drifting estimate")
+  run.add_argument("--out", default=None, help="results folder")
+  run.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
+  run.add_argument("--no-progress", action="store_true")
+
+  maps = sub.add_parser("maps", help="list the built-in worlds, or render one to PNG")
+  maps.add_argument("--render", default=None, metavar="WORLD", help="world name or YAML path")
+  maps.add_argument("--res", type=float, default=None)
+  maps.add_argument("--out", default=None, help="PNG path for --render")
+
+  plot = sub.add_parser("plot", help="redraw the figures of a results folder")
+  plot.add_argument("run_dir")
+  return parser
+
+
+def main(argv=None) -> int:
+  args = build_parser().parse_args(argv)
+  if args.command == "run":
+    _set_devices(args.devices)
+    from jaxplore.config import ConfigError
+    from jaxplore.maps import MapError
+    from jaxplore.runner import run
+    try:
+      result = run(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
+                   preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
+                   replan_every=args.replan_every, params=_key_values(args.set, "--set"),
+                   planner_params=_key_values(args.planner_set, "--planner-set"),
+                   pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
+                   devices=args.devices)
+    except (ConfigError, MapError) as err:
+      print(f"jaxplore: error: {err}", file=sys.stderr)
+      return 2
+    except KeyboardInterrupt as err:
+      print(f"jaxplore: {err}", file=sys.stderr)
+      return 130
+    t = result.timing
+    print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
+          f"{t['robot_steps_per_s']:.0f} robot-steps/s")
+    if result.out is not None:
+      print(f"results in {result.out}")
+    return 0
+  if args.command == "maps":
+    from jaxplore.maps import MapError, load_world, render_png, world_table
+    if args.render:
+      try:
+        grid = load_world(args.render, res=args.res)
+      except MapError as err:
+        print(f"jaxplore: error: {err}", file=sys.stderr)
+        return 2
+      out = args.out or f"{grid.name}.png"
+      render_png(grid, out)
+      print(f"wrote {out}")
+      return 0
+    rows = world_table()
+    print(f"{'world':<11} {'cells W x H':>11} {'res':>5} {'extent (m)':>12} {'free m²':>8} "
+          f"{'reachable m²':>12}  description")
+    for r in rows:
+      print(f"{r['name']:<11} {r['width_cells']:>5} x {r['height_cells']:<4} {r['res']:>5.2g} "
+            f"{r['width_m']:>5.1f} x {r['height_m']:<5.1f} {r['free_m2']:>8.0f} {r['reachable_m2']:>12.0f}"
+            f"  {r['description']}")
+    return 0
+  if args.command == "plot":
+    from jaxplore import plot
+    for path in plot.run_figures(args.run_dir):
+      print(f"wrote {path}")
+    return 0
+  return 1
+
+
+if __name__ == "__main__":
+  sys.exit(main())

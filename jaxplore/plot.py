@@ -1,0 +1,102 @@
+"""Figures of a run, drawn from its saved results folder (so ``jaxplore plot DIR`` can redraw them)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+
+def _extent(shape, res, origin):
+  h, w = shape
+  return (origin[0], origin[0] + w * res, origin[1], origin[1] + h * res)
+
+
+def belief_map(ax, occupied, logodds, res, origin, curves=None, robots=(0,)):
+  """The belief of one robot over the truth, with the trajectories of ``robots``.
+
+  Truth walls are drawn dark grey, believed-free cells white, believed-occupied black, unknown
+  light grey.
+  """
+  prob = 1.0 / (1.0 + np.exp(-logodds.astype(np.float32)))
+  shade = np.full(prob.shape, 0.82)
+  shade[prob < 0.35] = 1.0
+  shade[prob > 0.65] = 0.0
+  rgb = np.repeat(shade[..., None], 3, axis=-1)
+  unknown_wall = (np.abs(prob - 0.5) < 0.15) & occupied
+  rgb[unknown_wall] = (0.55, 0.55, 0.6)
+  ax.imshow(rgb, origin="lower", extent=_extent(occupied.shape, res, origin), interpolation="nearest")
+  if curves is not None and len(curves):
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, r in enumerate(robots):
+      c = curves[curves.robot == r]
+      if len(c):
+        ax.plot(c.x, c.y, lw=1.0, color=colours[k % len(colours)], label=f"robot {r}")
+        ax.plot(c.x.iloc[0], c.y.iloc[0], "o", ms=4, color=colours[k % len(colours)])
+    ax.legend(loc="upper right", fontsize=7)
+  ax.set_xlabel("x (m)")
+  ax.set_ylabel("y (m)")
+  ax.set_aspect("equal")
+
+
+def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, label=None):
+  """Mean and 10–90 % band of ``y`` over robots, each robot's curve interpolated on a common ``x``
+  grid (a finished robot holds its last value)."""
+  if not len(curves):
+    return
+  xmax = curves.groupby("robot")[x].max().max()
+  xs = np.linspace(0.0, max(xmax, 1e-9), grid_points)
+  ys = []
+  for _, c in curves.groupby("robot"):
+    cx, cy = c[x].to_numpy(), c[y].to_numpy()
+    keep = np.concatenate([[True], np.diff(cx) > 0])
+    ys.append(np.interp(xs, cx[keep], cy[keep]))
+  ys = np.asarray(ys)
+  line, = ax.plot(xs, ys.mean(0), label=label)
+  if len(ys) > 1:
+    ax.fill_between(xs, np.quantile(ys, 0.1, axis=0), np.quantile(ys, 0.9, axis=0), alpha=0.25,
+                    color=line.get_color(), lw=0)
+
+
+def run_figures(run_dir) -> list[Path]:
+  """Writes ``map.png``, ``entropy_distance.png`` and ``coverage_time.png`` into ``run_dir``."""
+  run_dir = Path(run_dir)
+  curves = pd.read_parquet(run_dir / "curves.parquet")
+  maps = np.load(run_dir / "maps.npz")
+  written = []
+
+  fig, ax = plt.subplots(figsize=(7, 6))
+  shown = tuple(range(min(4, maps["logodds"].shape[0])))
+  belief_map(ax, maps["occupied"], maps["logodds"][0], float(maps["res"]), maps["origin"], curves, shown)
+  ax.set_title("belief of robot 0 and trajectories")
+  written.append(_save(fig, run_dir / "map.png"))
+
+  fig, ax = plt.subplots(figsize=(6, 4))
+  spread(ax, curves, "distance", "entropy")
+  ax.set_xlabel("distance travelled (m)")
+  ax.set_ylabel("map entropy (nats)")
+  ax.set_title("map entropy vs distance (mean, 10–90 % band)")
+  written.append(_save(fig, run_dir / "entropy_distance.png"))
+
+  fig, ax = plt.subplots(figsize=(6, 4))
+  spread(ax, curves, "time", "coverage")
+  ax.set_xlabel("mission time (s)")
+  ax.set_ylabel("coverage of reachable free area")
+  ax.set_ylim(0, 1.02)
+  ax.set_title("coverage vs time (mean, 10–90 % band)")
+  written.append(_save(fig, run_dir / "coverage_time.png"))
+  return written
+
+
+def _save(fig, path: Path) -> Path:
+  fig.tight_layout()
+  tmp = path.with_name(path.stem + ".tmp.png")
+  fig.savefig(tmp, dpi=120)
+  plt.close(fig)
+  tmp.replace(path)
+  return path

@@ -1,0 +1,443 @@
+"""The batched exploration engine: ``reset``, ``step``, planning epochs and rollouts.
+
+Single-robot pure functions, batched at the edge with ``vmap`` (STYLE.md practice 4). Time is
+organised in *planning epochs* (DESIGN.md, "Beware lax.cond under vmap"): every robot plans in
+lockstep once per epoch, then takes ``replan_every`` motion steps. A robot that finishes its path
+before the epoch ends waits for the next planning round; that wait is not mission time (``time``
+counts only steps in which the robot moved or turned; ``idle_steps`` counts the waits).
+
+One motion step (:func:`step`): drive toward the next waypoint (or turn to the look-at cell) →
+dead-reckon the estimate and propagate Σ (Li Eq 16–17) → scan the truth from the true pose →
+relocalise if the scan ends on enough well-mapped walls → integrate the scan into the belief at
+the *estimated* pose → update the entropy map within ``R_u`` (Li Eq 3) → metrics → termination.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+from jaxplore import mapping, motion, sensor
+from jaxplore.config import ConfigError, Params, SimConfig
+from jaxplore.maps.grid import GridMap
+from jaxplore.planners import base as planners_base
+
+RUNNING, COMPLETE, EXHAUSTED, TIMEOUT = 0, 1, 2, 3
+REASONS = {RUNNING: "running", COMPLETE: "complete", EXHAUSTED: "exhausted", TIMEOUT: "timeout"}
+
+
+@chex.dataclass(frozen=True)
+class World:
+  """The ground truth shared by every robot of a batch (pass with ``in_axes=None``).
+
+  Attributes:
+    occupied: bool[H, W] truth (outside the grid counts as occupied).
+    reachable: bool[H, W] free cells 4-connected to the start area; coverage is measured on it.
+    start_ok: bool[H, W] reachable cells with clearance > r_robot (where random starts are drawn).
+    n_reachable: f32 number of reachable cells.
+    origin: f32[2] metres of the lower-left corner of cell (0, 0).
+  """
+
+  occupied: chex.Array
+  reachable: chex.Array
+  start_ok: chex.Array
+  n_reachable: chex.Array
+  origin: chex.Array
+
+
+def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
+  """Builds the device-side :class:`World` of a map (host side; validates the start).
+
+  Args:
+    grid: the truth map.
+    r_robot: the robot radius in metres (largest in the batch), for start clearance.
+    start_xy: optional (x, y) start in metres; the reachable area is its 4-connected free
+      component. Without it, the largest free component is used and starts are sampled in it.
+  Raises:
+    ConfigError: a start outside the map, inside a wall, or too close to one.
+  """
+  free = grid.free
+  labels, count = ndimage.label(free)
+  if count == 0:
+    raise ConfigError(f"map {grid.name!r} has no free cell")
+  clearance = ndimage.distance_transform_edt(free)  # cells, centre to nearest occupied centre
+  radius = r_robot / grid.res
+  if start_xy is not None:
+    i, j = grid.world_to_cell(start_xy[0], start_xy[1])
+    h, w = grid.shape
+    if not (0 <= i < h and 0 <= j < w):
+      raise ConfigError(f"start {tuple(start_xy)} m is outside the map {grid.name!r} "
+                        f"(x in [{grid.origin[0]}, {grid.origin[0] + w * grid.res}], "
+                        f"y in [{grid.origin[1]}, {grid.origin[1] + h * grid.res}])")
+    if grid.occupied[i, j]:
+      raise ConfigError(f"start {tuple(start_xy)} m is inside a wall of map {grid.name!r} (cell {i}, {j})")
+    if clearance[i, j] <= radius:
+      raise ConfigError(f"start {tuple(start_xy)} m is {clearance[i, j] * grid.res:.2f} m from a wall, "
+                        f"closer than the robot radius {r_robot} m")
+    reachable = labels == labels[i, j]
+  else:
+    sizes = ndimage.sum_labels(free, labels, index=np.arange(1, count + 1))
+    reachable = labels == (1 + int(np.argmax(sizes)))
+  start_ok = reachable & (clearance > radius)
+  if not start_ok.any():
+    raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius {r_robot} m")
+  return World(occupied=jnp.asarray(grid.occupied), reachable=jnp.asarray(reachable),
+               start_ok=jnp.asarray(start_ok), n_reachable=jnp.float32(reachable.sum()),
+               origin=jnp.asarray(grid.origin, jnp.float32))
+
+
+@chex.dataclass(frozen=True)
+class State:
+  """One robot's whole simulation state (leaves gain a leading batch axis under vmap).
+
+  Attributes:
+    key: PRNG key.
+    pose: f32[3] true pose (x m, y m, θ rad). pose_est: f32[3] the robot's estimate.
+    cov: f32[3, 3] pose covariance Σ of the estimate.
+    logodds: f32[H, W] occupancy belief. entropy_map: f32[H, W] Li's I_e.
+    blacklist: bool[H, W] goals found unresolvable (never chosen again).
+    waypoints: i32[L, 2] current path; path_len: i32; path_idx: i32 next waypoint.
+    goal, look_at, last_goal: i32[2] cells of the current and previous plan.
+    steps: i32 motion steps taken (including idle ones); idle_steps: i32.
+    time: f32 mission time (s); distance: f32 (m).
+    entropy: f32 map entropy Σ Ĥ(c) over the grid (nats). covered: f32 reachable cells known free.
+    done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
+  """
+
+  key: chex.Array
+  pose: chex.Array
+  pose_est: chex.Array
+  cov: chex.Array
+  logodds: chex.Array
+  entropy_map: chex.Array
+  blacklist: chex.Array
+  waypoints: chex.Array
+  path_len: chex.Array
+  path_idx: chex.Array
+  goal: chex.Array
+  look_at: chex.Array
+  last_goal: chex.Array
+  steps: chex.Array
+  idle_steps: chex.Array
+  time: chex.Array
+  distance: chex.Array
+  entropy: chex.Array
+  covered: chex.Array
+  done: chex.Array
+  reason: chex.Array
+
+
+@chex.dataclass(frozen=True)
+class Record:
+  """Per-step measurements of one robot (SPEC §5)."""
+
+  entropy: chex.Array  # nats
+  distance: chex.Array  # m
+  time: chex.Array  # s
+  coverage: chex.Array  # fraction of reachable free cells known free
+  det_cov: chex.Array  # det Σ
+  pose_error: chex.Array  # m, |true xy − estimated xy|
+  x: chex.Array  # true position, m
+  y: chex.Array
+  done: chex.Array  # bool
+
+
+def to_cells(xy, origin, res):
+  """Metres -> continuous cell coordinates (row, col)."""
+  return jnp.stack([(xy[1] - origin[1]) / res, (xy[0] - origin[0]) / res])
+
+
+def cell_of(xy, origin, res):
+  return jnp.floor(to_cells(xy, origin, res)).astype(jnp.int32)
+
+
+def cell_centre(cell, origin, res):
+  """Integer (row, col) -> metres (x, y) of the centre."""
+  return jnp.stack([origin[0] + (cell[1] + 0.5) * res, origin[1] + (cell[0] + 0.5) * res])
+
+
+def _sense(config: SimConfig, world: World, params: Params, state: State, key, active):
+  """Scan, relocalise, integrate into the belief, update the entropy map and the running metrics.
+
+  ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched without
+  selecting whole grids.
+  """
+  res = config.res
+  h, w = config.height, config.width
+  n_cross = config.max_range_cells + 1
+  true_uv = to_cells(state.pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
+  angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
+  noise_key, _ = jax.random.split(key)
+  scan, cells = sensor.cast(world.occupied, true_uv[0], true_uv[1], angles, params.r_max / res,
+                            n_cross, key=noise_key, noise_cells=params.range_noise / res)
+
+  pose_est, cov = state.pose_est, state.cov
+  if config.pose_noise:
+    # The scan is integrated where the robot believes it is; beams keep their robot-frame angle.
+    est_angles = angles - state.pose[2] + pose_est[2]
+    est_uv = to_cells(pose_est[:2], world.origin, res)[::-1]
+    est_cells = sensor.trace(est_uv[0], est_uv[1], est_angles, n_cross)
+    scan_est = scan._replace(angles=est_angles)
+    exact = jnp.bool_(False)
+  else:
+    est_uv, est_cells, scan_est = true_uv, cells, scan
+    exact = params.range_noise <= 0
+  obs = sensor.observe(scan_est, est_cells, est_uv[0], est_uv[1], (h, w), exact)
+
+  # Relocalisation (SPEC §1): enough beams end on occupied cells the belief already knows well.
+  old_end = state.logodds.at[obs.occ_rows, obs.occ_cols].get(mode="fill", fill_value=0.0)
+  well_mapped = (old_end > mapping.logit(params.p_occ)) & (
+      mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
+  hits = jnp.sum(well_mapped & scan.hit)
+  meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy, params.reloc_var_theta]))
+  new_est, new_cov = motion.relocalise(pose_est, cov, state.pose, meas_cov)
+  reloc = active & (hits >= params.reloc_min_hits)
+  pose_est = jnp.where(reloc, new_est, pose_est)
+  cov = jnp.where(reloc, new_cov, cov)
+
+  # Belief update in a window around the (estimated) robot that bounds every beam.
+  size_h = min(2 * config.max_range_cells + 5, h)
+  size_w = min(2 * config.max_range_cells + 5, w)
+  est_rc = jnp.floor(est_uv[::-1]).astype(jnp.int32)
+  r0 = mapping.window_start(est_rc[0], size_h, h)
+  c0 = mapping.window_start(est_rc[1], size_w, w)
+  shift = lambda a, o: jnp.where(active, a - o, -1)
+  observed = mapping.observation_grid((size_h, size_w), shift(obs.free_rows, r0), shift(obs.free_cols, c0),
+                                      shift(obs.occ_rows, r0), shift(obs.occ_cols, c0))
+  old = jax.lax.dynamic_slice(state.logodds, (r0, c0), (size_h, size_w))
+  new = mapping.update_logodds(old, observed, params)
+  reach = jax.lax.dynamic_slice(world.reachable, (r0, c0), (size_h, size_w))
+  free_threshold = mapping.logit(params.p_free)
+  d_entropy = jnp.sum(mapping.entropy_of_logodds(new) - mapping.entropy_of_logodds(old))
+  d_covered = jnp.sum(reach & (new < free_threshold)) - jnp.sum(reach & (old < free_threshold))
+  logodds = jax.lax.dynamic_update_slice(state.logodds, new, (r0, c0))
+
+  ru_cells = jnp.where(active, params.alpha * params.r_e / res, 0.0)
+  entropy_map = mapping.update_entropy_map(
+      state.entropy_map, logodds, to_cells(pose_est[:2], world.origin, res), ru_cells,
+      params.entropy_k, 2 * config.max_update_radius_cells + 3)
+  return state.replace(pose_est=pose_est, cov=cov, logodds=logodds, entropy_map=entropy_map,
+                       entropy=state.entropy + d_entropy, covered=state.covered + d_covered)
+
+
+def sample_start(world: World, key):
+  """A pose drawn uniformly over ``world.start_ok`` cells (centre) with a uniform heading."""
+  k_cell, k_theta = jax.random.split(key)
+  h, w = world.occupied.shape
+  logits = jnp.where(world.start_ok.ravel(), 0.0, -jnp.inf)
+  flat = jax.random.categorical(k_cell, logits)
+  cell = jnp.stack([flat // w, flat % w])
+  theta = jax.random.uniform(k_theta, (), minval=-jnp.pi, maxval=jnp.pi)
+  return cell, theta
+
+
+def reset(config: SimConfig, world: World, params: Params, key, start_pose=None) -> State:
+  """A robot at its start with an empty belief, after its first scan.
+
+  Args:
+    start_pose: f32[3] (x, y, θ) or None to sample a start cell and heading from ``key``.
+  """
+  h, w, L = config.height, config.width, config.path_capacity
+  key, k_start, k_scan = jax.random.split(key, 3)
+  if start_pose is None:
+    cell, theta = sample_start(world, k_start)
+    xy = cell_centre(cell, world.origin, config.res)
+    pose = jnp.concatenate([xy, theta[None]]).astype(jnp.float32)
+  else:
+    pose = jnp.asarray(start_pose, jnp.float32)
+  cell = cell_of(pose[:2], world.origin, config.res)
+  zeros_i2 = jnp.zeros((2,), jnp.int32) - 1
+  state = State(
+      key=key, pose=pose, pose_est=pose, cov=jnp.eye(3, dtype=jnp.float32) * params.sigma0,
+      logodds=jnp.zeros((h, w), jnp.float32),
+      entropy_map=jnp.full((h, w), mapping.LN2, jnp.float32),
+      blacklist=jnp.zeros((h, w), bool),
+      waypoints=jnp.broadcast_to(cell, (L, 2)).astype(jnp.int32), path_len=jnp.int32(0),
+      path_idx=jnp.int32(0), goal=zeros_i2, look_at=cell, last_goal=zeros_i2,
+      steps=jnp.int32(0), idle_steps=jnp.int32(0), time=jnp.float32(0), distance=jnp.float32(0),
+      entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
+      done=jnp.bool_(False), reason=jnp.int32(RUNNING))
+  state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
+  return _check_complete(world, params, state)
+
+
+def _check_complete(world: World, params: Params, state: State) -> State:
+  complete = ~state.done & (state.covered >= params.coverage_goal * world.n_reachable - 1e-3)
+  return state.replace(done=state.done | complete,
+                       reason=jnp.where(complete, COMPLETE, state.reason))
+
+
+def record(world: World, state: State) -> Record:
+  return Record(entropy=state.entropy, distance=state.distance, time=state.time,
+                coverage=state.covered / world.n_reachable, det_cov=jnp.linalg.det(state.cov),
+                pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
+                x=state.pose[0], y=state.pose[1], done=state.done)
+
+
+def step(config: SimConfig, world: World, params: Params, state: State) -> tuple[State, Record]:
+  """One motion step of one robot (see the module docstring for the order of events)."""
+  res = config.res
+  key, k_noise, k_sense = jax.random.split(state.key, 3)
+  running = ~state.done
+  has_waypoint = state.path_idx < state.path_len
+  idx = jnp.minimum(state.path_idx, config.path_capacity - 1)
+  target = jnp.where(has_waypoint, state.waypoints[idx], state.look_at)
+  # Collisions are impossible by construction: a waypoint the truth says is occupied ends the path.
+  blocked = has_waypoint & world.occupied[target[0], target[1]]
+  path_len = jnp.where(blocked, state.path_idx, state.path_len)
+  has_waypoint = has_waypoint & ~blocked
+  target = jnp.where(has_waypoint, target, state.look_at)
+  target_xy = cell_centre(target, world.origin, res)
+  look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
+  drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
+                              translate=has_waypoint)
+  busy = running & (has_waypoint | (look_needed & (jnp.abs(drive.delta_phi) > 1e-6)))
+  delta_d = jnp.where(busy, drive.delta_d, 0.0)
+  delta_phi = jnp.where(busy, drive.delta_phi, 0.0)
+  pose = jnp.where(busy, drive.pose, state.pose)
+  path_idx = state.path_idx + (busy & has_waypoint & drive.arrived).astype(jnp.int32)
+
+  # Odometry: the estimate is dead-reckoned from the (possibly noisy) increment; Σ by Eq 17.
+  odo = motion.increment(delta_d, delta_phi)
+  v_n = motion.odometry_covariance(delta_d, delta_phi, params.sigma_d, params.sigma_phi)
+  if config.pose_noise:
+    odo = odo + jnp.sqrt(jnp.diag(v_n)) * jax.random.normal(k_noise, (3,))
+  pose_est = motion.compound(state.pose_est, odo)
+  cov = motion.propagate_covariance(state.cov, state.pose_est, pose_est, v_n)
+  if not config.pose_noise:
+    pose_est = pose
+
+  state = state.replace(key=key, pose=pose, pose_est=pose_est, cov=cov, path_len=path_len,
+                        path_idx=path_idx, steps=state.steps + running.astype(jnp.int32),
+                        idle_steps=state.idle_steps + (running & ~busy).astype(jnp.int32),
+                        time=state.time + jnp.where(busy, params.dt, 0.0),
+                        distance=state.distance + delta_d)
+  state = _sense(config, world, params, state, k_sense, busy)
+  state = _check_complete(world, params, state)
+  timeout = ~state.done & (state.steps >= config.max_steps)
+  state = state.replace(done=state.done | timeout, reason=jnp.where(timeout, TIMEOUT, state.reason))
+  return state, record(world, state)
+
+
+def belief_view(config: SimConfig, params: Params, state: State) -> planners_base.BeliefView:
+  """The planner's view of one robot's belief (masks computed once per planning round)."""
+  free, occupied, unknown = mapping.classify(state.logodds, params)
+  inflated = mapping.inflate(occupied, params.r_robot / config.res, config.max_inflation_cells)
+  return planners_base.BeliefView(
+      logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
+      unknown=unknown, traversable=free & ~inflated, frontier=mapping.frontier(free, unknown, occupied),
+      blacklist=state.blacklist)
+
+
+def robot_view(config: SimConfig, world: World, state: State) -> planners_base.RobotView:
+  return planners_base.RobotView(pose=state.pose_est, cell=cell_of(state.pose_est[:2], world.origin, config.res),
+                                 cov=state.cov)
+
+
+def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
+  """One robot's planning round: ask the planner, install the path, handle no-op goals.
+
+  A robot whose planner finds no candidate ends ``exhausted`` (unless already complete). A goal
+  chosen twice in a row while the robot already stands on it cannot be resolved from here and
+  is blacklisted, so no robot waits on it forever.
+  """
+  spec = planners_base.get_planner(config.planner)
+  key, k_plan = jax.random.split(state.key)
+  robot = robot_view(config, world, state)
+  result = spec.plan(config, belief_view(config, params, state), robot, params, k_plan)
+  running = ~state.done
+  stuck = result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
+  blacklist = state.blacklist.at[result.goal[0], result.goal[1]].set(
+      state.blacklist[result.goal[0], result.goal[1]] | (stuck & running))
+  exhausted = running & ~result.valid
+  install = running & result.valid
+  return state.replace(
+      key=key, blacklist=blacklist,
+      waypoints=jnp.where(install, result.waypoints, state.waypoints),
+      path_len=jnp.where(install, result.length, 0),
+      path_idx=jnp.where(install, jnp.minimum(1, result.length), 0),
+      goal=jnp.where(install, result.goal, state.goal),
+      look_at=jnp.where(install, result.look_at, robot.cell),
+      last_goal=jnp.where(install, result.goal, state.last_goal),
+      done=state.done | exhausted,
+      reason=jnp.where(exhausted, EXHAUSTED, state.reason))
+
+
+def _batched(fn, chunk):
+  """``vmap`` of a per-robot function, run as ``lax.map`` over chunks (DESIGN.md)."""
+  def run(*args):
+    return jax.lax.map(lambda a: fn(*a), args, batch_size=chunk)
+  return run
+
+
+def epoch(config: SimConfig, world: World, params: Params, state: State):
+  """One lockstep planning round for the whole batch, then ``replan_every`` motion steps.
+
+  ``params`` and ``state`` carry a leading batch axis; ``world`` is shared.
+  """
+  plan_one = lambda p, s: plan(config, world, p, s)
+  state = _batched(plan_one, config.plan_chunk)(params, state)
+  step_batch = jax.vmap(lambda p, s: step(config, world, p, s))
+
+  def body(s, _):
+    return step_batch(params, s)
+
+  return jax.lax.scan(body, state, None, length=config.replan_every)
+
+
+def advance_unjitted(config: SimConfig, world: World, params: Params, state: State, n_epochs: int):
+  """``n_epochs`` planning rounds for a batch; records stacked as [n_epochs * replan_every, B]."""
+  def body(s, _):
+    return epoch(config, world, params, s)
+
+  state, records = jax.lax.scan(body, state, None, length=n_epochs)
+  records = jax.tree.map(lambda r: r.reshape((-1,) + r.shape[2:]), records)
+  return state, records
+
+
+advance = jax.jit(advance_unjitted, static_argnames=("config", "n_epochs"))
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def reset_batch(config: SimConfig, world: World, params: Params, keys, start_poses=None):
+  """``reset`` for a batch: ``params`` and ``keys`` batched; ``start_poses`` f32[B, 3] or None."""
+  if start_poses is None:
+    return jax.vmap(lambda p, k: reset(config, world, p, k))(params, keys)
+  return jax.vmap(lambda p, k, s: reset(config, world, p, k, s))(params, keys, start_poses)
+
+
+def broadcast_params(params: Params, batch: int) -> Params:
+  """Gives every leaf a leading batch axis (scalars are repeated; batched leaves are checked)."""
+  def expand(leaf):
+    leaf = jnp.asarray(leaf, jnp.float32)
+    if leaf.ndim == 0:
+      return jnp.broadcast_to(leaf, (batch,))
+    if leaf.shape[0] != batch:
+      raise ConfigError(f"a batched parameter has {leaf.shape[0]} values for {batch} robots")
+    return leaf
+  return jax.tree.map(expand, params)
+
+
+def rollout(config: SimConfig, world: World, params: Params, keys, start_poses=None):
+  """The whole episode for a batch in one compiled call (no early exit, no progress bar).
+
+  :func:`jaxplore.run.run` is the user-facing loop that stops early and shows progress; this is
+  the minimal pure form (for tests and embedding).
+  Returns (final state, records with leaves [max_steps, B]).
+  """
+  state = reset_batch(config, world, params, keys, start_poses)
+  state, records = advance(config, world, params, state, config.n_epochs)
+  records = jax.tree.map(lambda r: r[: config.max_steps], records)
+  return state, records
+
+
+__all__ = [
+    "World", "State", "Record", "make_world", "reset", "step", "plan", "epoch", "advance",
+    "reset_batch", "rollout", "broadcast_params", "REASONS", "RUNNING", "COMPLETE", "EXHAUSTED",
+    "TIMEOUT",
+]

@@ -1,0 +1,109 @@
+"""``jaxplore.run`` and the ``jaxplore`` command: outputs, reproducibility, clear errors on bad input."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import jaxplore
+from jaxplore import cli
+from jaxplore.config import ConfigError
+from jaxplore.maps import MapError
+
+SMALL = dict(world="lab", robots=2, max_steps=40, replan_every=5, progress=False, quiet=True,
+             params={"r_max": 3.0})
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+  out = tmp_path_factory.mktemp("run")
+  return jaxplore.run(out=out, **SMALL), out
+
+
+def test_run_writes_every_output(small_run):
+  result, out = small_run
+  for name in ("config.json", "timing.json", "episodes.parquet", "curves.parquet", "maps.npz",
+               "map.png", "entropy_distance.png", "coverage_time.png"):
+    assert (out / name).exists(), name
+  config = json.loads((out / "config.json").read_text())
+  assert config["seed"] == 0 and config["sim_config"]["max_steps"] == 40
+  assert config["params"]["r_max"] == pytest.approx(3.0)
+  episodes = pd.read_parquet(out / "episodes.parquet")
+  assert len(episodes) == 2 and set(episodes.reason) <= {"complete", "exhausted", "timeout"}
+  for column in ("entropy_reduction", "distance_m", "E_r", "Std_E_r", "coverage_m2", "t90_s", "reason"):
+    assert column in episodes
+  curves = pd.read_parquet(out / "curves.parquet")
+  assert set(curves.robot) == {0, 1}
+  assert (curves.groupby("robot").step.max() <= 40).all()
+
+
+def test_same_command_same_numbers(small_run):
+  result, _ = small_run
+  again = jaxplore.run(**SMALL)
+  pd.testing.assert_frame_equal(result.episodes, again.episodes)
+  pd.testing.assert_frame_equal(result.curves, again.curves)
+
+
+def test_episode_metrics_follow_their_definitions(small_run):
+  result, _ = small_run
+  for _, row in result.episodes.iterrows():
+    curve = result.curves[result.curves.robot == row.robot]
+    assert row.distance_m == pytest.approx(curve.distance.iloc[-1])
+    assert row.entropy_reduction == pytest.approx(row.entropy_initial - curve.entropy.iloc[-1])
+    if row.distance_m > 0:
+      assert row.E_r == pytest.approx(row.entropy_reduction / row.distance_m)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(world="atlantis"), MapError, "atlantis.*office"),
+    (dict(world="/nonexistent/map.yaml"), MapError, "map.yaml"),
+    (dict(planner="teleport"), ConfigError, "unknown planner 'teleport'"),
+    (dict(params={"v_max": float("nan")}), ConfigError, "v_max"),
+    (dict(params={"fov": 7.0}), ConfigError, "fov"),
+    (dict(params={"r_robot": -1.0}), ConfigError, "r_robot"),
+    (dict(params={"warp": 1.0}), ConfigError, "warp"),
+    (dict(preset="hubble"), ConfigError, "hubble"),
+    (dict(start="0.0,0.0"), ConfigError, "inside a wall"),
+    (dict(start="100,5"), ConfigError, "outside the map"),
+    (dict(start="1,nan"), ConfigError, "start"),
+    (dict(robots=0), ConfigError, "robots"),
+    (dict(planner_params={"k9": 1.0}), ConfigError, "k9"),
+])
+def test_bad_input_is_refused_before_compute(kwargs, error, match):
+  settings = dict(SMALL, **kwargs)
+  with pytest.raises(error, match=match):
+    jaxplore.run(**settings)
+
+
+def test_map_with_no_free_cell_is_refused(tmp_path):
+  from jaxplore.maps import GridMap
+  with pytest.raises((MapError, ConfigError), match="no free cell"):
+    jaxplore.run(**dict(SMALL, world=GridMap(np.ones((10, 10), bool), 0.1, name="solid")))
+
+
+def test_absurd_batch_is_refused_with_the_numbers():
+  with pytest.raises(ConfigError, match="GiB"):
+    jaxplore.run(**dict(SMALL, robots=10_000_000))
+
+
+def test_cli_run_and_maps(tmp_path, capsys):
+  out = tmp_path / "cli"
+  code = cli.main(["run", "--world", "lab", "--robots", "2", "--max-steps", "20", "--replan-every", "5",
+                   "--set", "r_max=3", "--out", str(out), "--no-progress", "--devices", "1"])
+  assert code == 0
+  assert (out / "episodes.parquet").exists()
+  printed = capsys.readouterr().out
+  assert "termination:" in printed and "results in" in printed
+  assert cli.main(["maps"]) == 0
+  assert "office" in capsys.readouterr().out
+  assert cli.main(["maps", "--render", "lab", "--out", str(tmp_path / "lab.png")]) == 0
+  assert (tmp_path / "lab.png").exists()
+  assert cli.main(["plot", str(out)]) == 0
+
+
+def test_cli_errors_are_one_clear_line(capsys):
+  assert cli.main(["run", "--world", "atlantis", "--no-progress"]) == 2
+  err = capsys.readouterr().err
+  assert err.startswith("jaxplore: error:") and "atlantis" in err

@@ -1,0 +1,151 @@
+"""The engine end to end on tiny worlds: termination reasons, determinism, no retrace, no collision."""
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import box_world
+from jaxplore import sim
+from jaxplore.config import config_for, make_params
+
+ROBOTS = 3
+
+
+def setup(grid, max_steps=300, r_max=3.0, pose_noise=False, **overrides):
+  params = make_params("li2020", res=grid.res, r_max=r_max, **overrides)
+  config = config_for(grid.shape, grid.res, params, max_steps=max_steps, replan_every=6,
+                      pose_noise=pose_noise)
+  world = sim.make_world(grid, float(params.r_robot))
+  return config, world, sim.broadcast_params(params, ROBOTS)
+
+
+@pytest.fixture(scope="module")
+def rooms():
+  # Two rooms joined by a 1 m door.
+  return box_world(40, 60, 0.1, walls=((1, 39, 29, 31),)).__class__(
+      _with_door(), 0.1, (0.0, 0.0), "rooms")
+
+
+def _with_door():
+  occ = box_world(40, 60, 0.1, walls=((1, 39, 29, 31),)).occupied.copy()
+  occ[15:25, 29:31] = False
+  return occ
+
+
+@pytest.fixture(scope="module")
+def rooms_run(rooms):
+  config, world, params = setup(rooms)
+  keys = jax.random.split(jax.random.PRNGKey(0), ROBOTS)
+  state, records = sim.rollout(config, world, params, keys)
+  return config, world, params, keys, state, records
+
+
+def test_every_robot_completes_two_rooms(rooms_run):
+  config, world, _, _, state, records = rooms_run
+  assert np.all(np.asarray(state.reason) == sim.COMPLETE), np.asarray(state.reason)
+  final = np.asarray(records.coverage)[-1]
+  assert np.all(final >= 0.99)
+  chex.assert_shape(records.coverage, (config.max_steps, ROBOTS))
+  chex.assert_tree_all_finite(jax.tree.map(lambda r: r[:, :], records.distance))
+  # coverage is monotone while running and distance never decreases
+  assert np.all(np.diff(np.asarray(records.distance), axis=0) >= -1e-6)
+
+
+def test_running_metrics_match_a_full_recount(rooms_run):
+  _, world, params, _, state, _ = rooms_run
+  from jaxplore import mapping
+  l = np.asarray(state.logodds)
+  h = np.asarray(mapping.entropy_of_logodds(jnp.asarray(l))).sum(axis=(1, 2))
+  np.testing.assert_allclose(np.asarray(state.entropy), h, rtol=1e-4)
+  free = l < np.asarray(mapping.logit(params.p_free))[:, None, None]
+  covered = (free & np.asarray(world.reachable)[None]).sum(axis=(1, 2))
+  np.testing.assert_allclose(np.asarray(state.covered), covered)
+
+
+def test_robots_never_enter_occupied_cells(rooms, rooms_run):
+  _, _, _, _, _, records = rooms_run
+  rows = np.floor(np.asarray(records.y) / rooms.res).astype(int)
+  cols = np.floor(np.asarray(records.x) / rooms.res).astype(int)
+  assert not rooms.occupied[rows, cols].any()
+
+
+def test_same_keys_same_numbers(rooms, rooms_run):
+  config, world, params, keys, state, records = rooms_run
+  state2, records2 = sim.rollout(config, world, params, keys)
+  chex.assert_trees_all_equal(records, records2)
+  chex.assert_trees_all_equal(state.logodds, state2.logodds)
+
+
+def test_changing_a_traced_parameter_does_not_retrace(rooms):
+  config, world, params = setup(rooms, max_steps=12)
+  keys = jax.random.split(jax.random.PRNGKey(1), ROBOTS)
+  state = sim.reset_batch(config, world, params, keys)
+  chex.clear_trace_counter()
+  advance = jax.jit(chex.assert_max_traces(sim.advance_unjitted, n=1), static_argnames=("config", "n_epochs"))
+  advance(config, world, params, state, n_epochs=2)
+  for name, value in (("v_max", 0.4), ("r_max", 2.0), ("alpha", 1.0), ("l_free", -0.5)):
+    changed = params.replace(**{name: jnp.full((ROBOTS,), value, jnp.float32)})
+    out, _ = advance(config, world, changed, state, n_epochs=2)
+  jax.block_until_ready(out)
+
+
+def test_gap_narrower_than_robot_ends_exhausted():
+  # Right room reachable only through a 0.2 m slit: the 0.2 m-radius robot cannot pass.
+  grid = box_world(40, 60, 0.1, walls=((1, 39, 29, 31),))
+  occ = grid.occupied.copy()
+  occ[20:22, 29:31] = False
+  grid = grid.__class__(occ, 0.1, (0.0, 0.0), "slit")
+  config, world, params = setup(grid, max_steps=400, r_max=1.5)
+  starts = jnp.tile(jnp.asarray([1.0, 2.0, 0.0]), (ROBOTS, 1))
+  state, records = sim.rollout(config, world, params, jax.random.split(jax.random.PRNGKey(2), ROBOTS), starts)
+  assert np.all(np.asarray(state.reason) == sim.EXHAUSTED), np.asarray(state.reason)
+  assert np.all(np.asarray(records.coverage)[-1] < 0.99)
+
+
+def test_step_budget_ends_in_timeout(rooms):
+  config, world, params = setup(rooms, max_steps=12)
+  state, records = sim.rollout(config, world, params, jax.random.split(jax.random.PRNGKey(3), ROBOTS))
+  assert np.all(np.asarray(state.reason) == sim.TIMEOUT)
+  assert np.all(np.asarray(state.steps) == 12)
+
+
+def test_step_eager_equals_jit():
+  grid = box_world(16, 20, 0.1, walls=((1, 8, 9, 10),))
+  params = make_params("li2020", res=grid.res, r_max=0.8)
+  config = config_for(grid.shape, grid.res, params, max_steps=30, n_beams=12)
+  world = sim.make_world(grid, float(params.r_robot))
+  params = sim.broadcast_params(params, ROBOTS)
+  keys = jax.random.split(jax.random.PRNGKey(4), ROBOTS)
+  state = sim.reset_batch(config, world, params, keys)
+  state = jax.jit(jax.vmap(lambda p, s: sim.plan(config, world, p, s)))(params, state)
+  one = jax.tree.map(lambda x: x[0], state)
+  p0 = jax.tree.map(lambda x: x[0], params)
+  eager = sim.step(config, world, p0, one)
+  jitted = jax.jit(lambda p, s: sim.step(config, world, p, s))(p0, one)
+  chex.assert_trees_all_close(eager, jitted, atol=1e-5)
+
+
+def test_pose_noise_drifts_and_relocalisation_bounds_it(rooms):
+  config, world, params = setup(rooms, max_steps=120, pose_noise=True, sigma_d=0.2, sigma_phi=0.2)
+  starts = jnp.tile(jnp.asarray([1.5, 2.0, 0.0]), (ROBOTS, 1))
+  keys = jax.random.split(jax.random.PRNGKey(5), ROBOTS)
+  _, records = sim.rollout(config, world, params, keys, starts)
+  assert float(np.asarray(records.pose_error).max()) > 0.0
+  # Without relocalisation (an impossible hit count) Σ only grows (Eq 14).
+  never = params.replace(reloc_min_hits=jnp.full((ROBOTS,), 1e9, jnp.float32))
+  _, grown = sim.rollout(config, world, never, keys, starts)
+  det = np.asarray(grown.det_cov)
+  assert np.all(np.diff(det, axis=0) >= -1e-12 * np.abs(det[:-1]).max())
+  assert np.asarray(records.det_cov).max() < det.max()
+
+
+def test_start_inside_wall_or_outside_is_refused(rooms):
+  from jaxplore.config import ConfigError
+  with pytest.raises(ConfigError, match="inside a wall"):
+    sim.make_world(rooms, 0.2, (3.0, 0.05))
+  with pytest.raises(ConfigError, match="outside the map"):
+    sim.make_world(rooms, 0.2, (30.0, 1.0))
+  with pytest.raises(ConfigError, match="closer than the robot radius"):
+    sim.make_world(rooms, 0.2, (0.15, 2.0))
