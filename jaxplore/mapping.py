@@ -28,9 +28,13 @@ def entropy_of_probability(p):
 
 
 def entropy_of_logodds(logodds):
-  """Li Eq 2 computed stably from log-odds: ``H = P·softplus(−l) + (1−P)·softplus(l)``."""
-  p = jax.nn.sigmoid(logodds)
-  return p * jax.nn.softplus(-logodds) + (1.0 - p) * jax.nn.softplus(logodds)
+  """Li Eq 2 computed stably from log-odds with one ``exp`` and one ``log1p``.
+
+  With ``e = exp(−|l|)``: ``H = log(1 + e) + |l|·e / (1 + e)`` (the entropy is even in ``l``).
+  """
+  a = jnp.abs(logodds)
+  e = jnp.exp(-a)
+  return jnp.log1p(e) + a * e / (1.0 + e)
 
 
 def logit(p):
@@ -114,22 +118,6 @@ def frontier(free, unknown, occupied):
       open_way = ~(shifted(fo, di, 0) & shifted(fo, 0, dj))
     seen = seen | (shifted(fu, di, dj) & open_way)
   return free & seen
-
-
-def scatter_mark(shape, rows, cols, value, base=None):
-  """Sets ``value`` at each (row, col) inside the grid; entries outside are dropped."""
-  h, w = shape
-  inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-  rows = jnp.where(inside, rows, h)
-  cols = jnp.where(inside, cols, w)
-  grid = jnp.zeros(shape, jnp.int8) if base is None else base
-  return grid.at[rows, cols].set(jnp.int8(value), mode="drop", wrap_negative_indices=False)
-
-
-def observation_grid(shape, free_rows, free_cols, occ_rows, occ_cols):
-  """int8 grid: 0 unobserved, 1 seen free, 2 seen occupied (occupied wins)."""
-  grid = scatter_mark(shape, free_rows.ravel(), free_cols.ravel(), 1)
-  return scatter_mark(shape, occ_rows.ravel(), occ_cols.ravel(), 2, base=grid)
 
 
 def update_logodds(logodds, observed, params):

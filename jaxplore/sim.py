@@ -37,6 +37,7 @@ class World:
 
   Attributes:
     occupied: bool[H, W] truth (outside the grid counts as occupied).
+    truth_framed: bool[(H + 2) * (W + 2)] the truth with an occupied border, flat (for the lidar).
     reachable: bool[H, W] free cells 4-connected to the start area; coverage is measured on it.
     start_ok: bool[H, W] reachable cells with clearance > r_robot (where random starts are drawn).
     n_reachable: f32 number of reachable cells.
@@ -44,6 +45,7 @@ class World:
   """
 
   occupied: chex.Array
+  truth_framed: chex.Array
   reachable: chex.Array
   start_ok: chex.Array
   n_reachable: chex.Array
@@ -86,7 +88,8 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
   start_ok = reachable & (clearance > radius)
   if not start_ok.any():
     raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius {r_robot} m")
-  return World(occupied=jnp.asarray(grid.occupied), reachable=jnp.asarray(reachable),
+  return World(occupied=jnp.asarray(grid.occupied),
+               truth_framed=sensor.frame_truth(jnp.asarray(grid.occupied)), reachable=jnp.asarray(reachable),
                start_ok=jnp.asarray(start_ok), n_reachable=jnp.float32(reachable.sum()),
                origin=jnp.asarray(grid.origin, jnp.float32))
 
@@ -173,8 +176,9 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   true_uv = to_cells(state.pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
   angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
   noise_key, _ = jax.random.split(key)
-  scan, cells = sensor.cast(world.occupied, true_uv[0], true_uv[1], angles, params.r_max / res,
-                            n_cross, key=noise_key, noise_cells=params.range_noise / res)
+  scan, cells = sensor.cast(world.truth_framed, (h, w), true_uv[0], true_uv[1], angles,
+                            params.r_max / res, n_cross, key=noise_key,
+                            noise_cells=params.range_noise / res)
 
   pose_est, cov = state.pose_est, state.cov
   if config.pose_noise:
@@ -187,35 +191,45 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   else:
     est_uv, est_cells, scan_est = true_uv, cells, scan
     exact = params.range_noise <= 0
-  obs = sensor.observe(scan_est, est_cells, est_uv[0], est_uv[1], (h, w), exact)
+
+  # The belief changes only in a window around the (estimated) robot that bounds every beam.
+  # Under vmap a window at a per-robot offset becomes a gather/scatter of the whole window, so a
+  # window is used only where it is much smaller than the grid.
+  size = (min(2 * config.max_range_cells + 5, h), min(2 * config.max_range_cells + 5, w))
+  windowed = size[0] * size[1] < 0.5 * h * w
+  if windowed:
+    est_rc = jnp.floor(est_uv[::-1]).astype(jnp.int32)
+    origin = jnp.stack([mapping.window_start(est_rc[0], size[0], h),
+                        mapping.window_start(est_rc[1], size[1], w)])
+  else:
+    size, origin = (h, w), jnp.zeros((2,), jnp.int32)
+  obs = sensor.observe(scan_est, est_cells, est_uv[0], est_uv[1], (h, w), exact, origin, size)
 
   # Relocalisation (SPEC §1): enough beams end on occupied cells the belief already knows well.
-  old_end = state.logodds.at[obs.occ_rows, obs.occ_cols].get(mode="fill", fill_value=0.0)
+  old_end = state.logodds.at[obs.end_rows, obs.end_cols].get(mode="fill", fill_value=0.0)
   well_mapped = (old_end > mapping.logit(params.p_occ)) & (
       mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
-  hits = jnp.sum(well_mapped & scan.hit)
+  hits = jnp.sum(well_mapped & obs.hit)
   meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy, params.reloc_var_theta]))
   new_est, new_cov = motion.relocalise(pose_est, cov, state.pose, meas_cov)
   reloc = active & (hits >= params.reloc_min_hits)
   pose_est = jnp.where(reloc, new_est, pose_est)
   cov = jnp.where(reloc, new_cov, cov)
 
-  # Belief update in a window around the (estimated) robot that bounds every beam.
-  size_h = min(2 * config.max_range_cells + 5, h)
-  size_w = min(2 * config.max_range_cells + 5, w)
-  est_rc = jnp.floor(est_uv[::-1]).astype(jnp.int32)
-  r0 = mapping.window_start(est_rc[0], size_h, h)
-  c0 = mapping.window_start(est_rc[1], size_w, w)
-  shift = lambda a, o: jnp.where(active, a - o, -1)
-  observed = mapping.observation_grid((size_h, size_w), shift(obs.free_rows, r0), shift(obs.free_cols, c0),
-                                      shift(obs.occ_rows, r0), shift(obs.occ_cols, c0))
-  old = jax.lax.dynamic_slice(state.logodds, (r0, c0), (size_h, size_w))
+  observed = jnp.where(active, sensor.observation_grid(obs, size), jnp.int8(0))
+  if windowed:
+    old = jax.lax.dynamic_slice(state.logodds, (origin[0], origin[1]), size)
+    reach = jax.lax.dynamic_slice(world.reachable, (origin[0], origin[1]), size)
+  else:
+    old, reach = state.logodds, world.reachable
   new = mapping.update_logodds(old, observed, params)
-  reach = jax.lax.dynamic_slice(world.reachable, (r0, c0), (size_h, size_w))
   free_threshold = mapping.logit(params.p_free)
   d_entropy = jnp.sum(mapping.entropy_of_logodds(new) - mapping.entropy_of_logodds(old))
   d_covered = jnp.sum(reach & (new < free_threshold)) - jnp.sum(reach & (old < free_threshold))
-  logodds = jax.lax.dynamic_update_slice(state.logodds, new, (r0, c0))
+  if windowed:
+    logodds = jax.lax.dynamic_update_slice(state.logodds, new, (origin[0], origin[1]))
+  else:
+    logodds = new
 
   ru_cells = jnp.where(active, params.alpha * params.r_e / res, 0.0)
   entropy_map = mapping.update_entropy_map(

@@ -80,14 +80,6 @@ def test_update_logodds_once_per_cell_and_clamped():
   assert new[0, 1] == float(p.l_free) and new[1, 1] == float(p.l_occ) and new[2, 2] == 0.0
 
 
-def test_observation_grid_occupied_wins_and_outside_dropped():
-  rows = jnp.asarray([[0, 1, -1, 5]])
-  cols = jnp.asarray([[0, 1, 0, 0]])
-  grid = np.asarray(mapping.observation_grid((4, 4), rows, cols, jnp.asarray([1]), jnp.asarray([1])))
-  assert grid[0, 0] == 1 and grid[1, 1] == 2
-  assert grid.sum() == 3  # the -1 and 5 rows were dropped, not wrapped
-
-
 @EAGER_AND_JIT
 def test_entropy_map_update_is_eq3_inside_radius_only(transform):
   rng = np.random.default_rng(3)

@@ -60,7 +60,8 @@ def test_cast_range_and_hit_cell_match_reference_on_random_grids(transform):
   h, w = 30, 30
   occupied = rng.random((h, w)) < 0.08
   free_cells = np.argwhere(~occupied)
-  cast = transform(lambda u, v, a: sensor.cast(jnp.asarray(occupied), u, v, a, 12.0, 13)[0])
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  cast = transform(lambda u, v, a: sensor.cast(truth, occupied.shape, u, v, a, 12.0, 13)[0])
   close = 0
   total = 0
   for _ in range(12):
@@ -87,7 +88,8 @@ def test_cast_range_and_hit_cell_match_reference_on_random_grids(transform):
 def test_no_beam_passes_between_diagonally_touching_cells(transform):
   occupied = np.zeros((12, 12), bool)
   occupied[5, 5] = occupied[6, 6] = True  # they touch at the corner point (u, v) = (6, 6)
-  cast = transform(lambda u, v, a: sensor.cast(jnp.asarray(occupied), u, v, a, 10.0, 11)[0])
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  cast = transform(lambda u, v, a: sensor.cast(truth, occupied.shape, u, v, a, 10.0, 11)[0])
   rng = np.random.default_rng(2)
   # From the free side (rows >= 6, cols <= 5) aim exactly at the shared corner.
   for _ in range(30):
@@ -105,7 +107,7 @@ def test_exact_45_degree_beam_from_cell_centre():
   # The common exact-corner case: a robot at a cell centre and a beam at 45 degrees.
   occupied = np.zeros((10, 10), bool)
   occupied[4, 3] = occupied[3, 4] = True
-  scan, _ = sensor.cast(jnp.asarray(occupied), jnp.float32(2.5), jnp.float32(2.5),
+  scan, _ = sensor.cast(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, jnp.float32(2.5), jnp.float32(2.5),
                         jnp.asarray([math.pi / 4], jnp.float32), 8.0, 9)
   assert bool(scan.hit[0])
   assert float(scan.ranges[0]) <= math.hypot(1.5, 1.5) + 1e-3
@@ -126,11 +128,16 @@ def test_observe_marks_traversed_cells_free_and_end_occupied():
   occupied[:, 15] = True
   u0, v0 = 5.5, 10.5
   angles = jnp.asarray([0.0], jnp.float32)
-  scan, cells = sensor.cast(jnp.asarray(occupied), jnp.float32(u0), jnp.float32(v0), angles, 18.0, 19)
-  obs = sensor.observe(scan, cells, u0, v0, occupied.shape, jnp.bool_(True))
-  free = {(int(r), int(c)) for r, c in zip(np.ravel(obs.free_rows), np.ravel(obs.free_cols)) if r < 20}
-  assert free == {(10, c) for c in range(5, 15)}
-  assert (int(obs.occ_rows[0]), int(obs.occ_cols[0])) == (10, 15)
+  scan, cells = sensor.cast(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, jnp.float32(u0), jnp.float32(v0), angles, 18.0, 19)
+  obs = sensor.observe(scan, cells, u0, v0, occupied.shape, jnp.bool_(True), jnp.asarray([0, 0]), (20, 20))
+  grid = np.asarray(sensor.observation_grid(obs, (20, 20)))
+  assert {tuple(c) for c in np.argwhere(grid == 1)} == {(10, c) for c in range(5, 15)}
+  assert {tuple(c) for c in np.argwhere(grid == 2)} == {(10, 15)}
+  # a window that cuts the beam keeps only its own cells, at window coordinates
+  obs = sensor.observe(scan, cells, u0, v0, occupied.shape, jnp.bool_(True), jnp.asarray([8, 10]), (4, 8))
+  grid = np.asarray(sensor.observation_grid(obs, (4, 8)))
+  assert {tuple(c) for c in np.argwhere(grid == 1)} == {(2, c) for c in range(0, 5)}
+  assert {tuple(c) for c in np.argwhere(grid == 2)} == {(2, 5)}
   np.testing.assert_allclose(float(scan.ranges[0]), 15 - 5.5, atol=1e-5)
 
 
@@ -138,11 +145,11 @@ def test_range_noise_changes_ranges_only_for_hits():
   occupied = np.zeros((20, 20), bool)
   occupied[:, 15] = True
   angles = jnp.asarray([0.0, math.pi], jnp.float32)
-  scan, _ = sensor.cast(jnp.asarray(occupied), jnp.float32(5.5), jnp.float32(10.5), angles, 4.0, 5,
+  scan, _ = sensor.cast(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, jnp.float32(5.5), jnp.float32(10.5), angles, 4.0, 5,
                         key=jax.random.PRNGKey(0), noise_cells=0.5)
   assert not bool(scan.hit[0]) and float(scan.ranges[0]) == pytest.approx(4.0)  # max range: no noise
   occupied[:, 2] = True
-  scan, _ = sensor.cast(jnp.asarray(occupied), jnp.float32(5.5), jnp.float32(10.5), angles, 18.0, 19,
+  scan, _ = sensor.cast(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, jnp.float32(5.5), jnp.float32(10.5), angles, 18.0, 19,
                         key=jax.random.PRNGKey(0), noise_cells=0.5)
   assert bool(scan.hit[1])
   assert float(scan.ranges[1]) != pytest.approx(float(scan.true_ranges[1]))
