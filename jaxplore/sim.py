@@ -362,12 +362,17 @@ def plan(config: SimConfig, world: World, params: Params, state: State) -> State
   """
   spec = planners_base.get_planner(config.planner)
   key, k_plan = jax.random.split(state.key)
+  running = ~state.done
+  blacklist = state.blacklist
+  if spec.blacklist_on_arrival:
+    arrived = running & (state.path_len > 0) & (state.path_idx >= state.path_len)
+    blacklist = blacklist.at[state.goal[0], state.goal[1]].max(
+        arrived, mode="drop", wrap_negative_indices=False)
+  state = state.replace(blacklist=blacklist)
   robot = robot_view(config, world, state)
   result = spec.plan(config, belief_view(config, params, state), robot, params, k_plan)
-  running = ~state.done
   stuck = result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
-  blacklist = state.blacklist.at[result.goal[0], result.goal[1]].set(
-      state.blacklist[result.goal[0], result.goal[1]] | (stuck & running))
+  blacklist = blacklist.at[result.goal[0], result.goal[1]].max(stuck & running)
   exhausted = running & ~result.valid
   install = running & result.valid
   return state.replace(

@@ -81,22 +81,33 @@ PlanFn = Callable[..., Plan]
 
 @dataclasses.dataclass(frozen=True)
 class PlannerSpec:
-  """A registered planner: its function, its default weights (traced) and a one-line summary."""
+  """A registered planner.
+
+  Attributes:
+    name: registry name (command line ``--planner``).
+    plan: the plan function.
+    defaults: default weights (traced leaves of ``Params.planner``).
+    summary: one line for listings.
+    blacklist_on_arrival: the engine blacklists a goal once the robot has reached the end of
+      the path to it (Ahmed's FD), so it is never chosen again.
+  """
 
   name: str
   plan: PlanFn
   defaults: dict
   summary: str
+  blacklist_on_arrival: bool = False
 
 
 _REGISTRY: dict[str, PlannerSpec] = {}
 
 
-def register(name: str, defaults: dict | None = None, summary: str = ""):
+def register(name: str, defaults: dict | None = None, summary: str = "",
+             blacklist_on_arrival: bool = False):
   """Decorator adding a plan function to the registry under ``name``."""
 
   def wrap(fn):
-    _REGISTRY[name] = PlannerSpec(name, fn, dict(defaults or {}), summary)
+    _REGISTRY[name] = PlannerSpec(name, fn, dict(defaults or {}), summary, blacklist_on_arrival)
     return fn
 
   return wrap
