@@ -42,6 +42,8 @@ class SimConfig:
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
     max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
+    gain_radius_cells: ``R_e`` in cells as a static shape: the radius of the disc a path sweeps
+      in Li's information gain (Eq 20), which fixes the shape of its kernels.
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
     plan_chunk: robots per ``lax.map`` chunk when planning (DESIGN.md: small chunks beat one big vmap).
   """
@@ -58,6 +60,7 @@ class SimConfig:
   pose_noise: bool = False
   max_inflation_cells: int = 3
   max_update_radius_cells: int = 30
+  gain_radius_cells: float = 7.5
   dijkstra_max_sweeps: int = 512
   plan_chunk: int = 4
 
@@ -247,6 +250,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
       max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
+      gain_radius_cells=float(np.max(np.asarray(params.r_e))) / res,
   )
   if preset is not None:
     kwargs["n_beams"] = PRESETS[preset].n_beams

@@ -128,6 +128,8 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
   steps = int(max_steps) if max_steps is not None else default_max_steps(grid, p)
   config = config_for(grid.shape, grid.res, p, preset=preset, max_steps=steps, **overrides)
   validate_params(p, config)
+  if spec.validate is not None:
+    spec.validate({k: np.asarray(v) for k, v in p.planner.items()}, p, config)
   return grid, config, p, start_pose
 
 

@@ -344,7 +344,8 @@ def belief_view(config: SimConfig, params: Params, state: State) -> planners_bas
   inflated = mapping.inflate(occupied, params.r_robot / config.res, config.max_inflation_cells)
   return planners_base.BeliefView(
       logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
-      unknown=unknown, traversable=free & ~inflated, frontier=mapping.frontier(free, unknown, occupied),
+      unknown=unknown, inflated=inflated, traversable=free & ~inflated,
+      frontier=mapping.frontier(free, unknown, occupied),
       blacklist=state.blacklist)
 
 

@@ -26,6 +26,7 @@ class BeliefView:
     logodds: f32[H, W] occupancy belief.
     entropy_map: f32[H, W] Li's smoothed entropy map I_e (Eq 3).
     free, occupied, unknown: bool[H, W] belief classes.
+    inflated: bool[H, W] cells within the robot radius of a believed-occupied cell.
     traversable: bool[H, W] free cells clear of occupied cells by the robot radius.
     frontier: bool[H, W] free cells next to unknown ones (see :func:`mapping.frontier`).
     blacklist: bool[H, W] goals the engine found unresolvable for this robot.
@@ -36,6 +37,7 @@ class BeliefView:
   free: chex.Array
   occupied: chex.Array
   unknown: chex.Array
+  inflated: chex.Array
   traversable: chex.Array
   frontier: chex.Array
   blacklist: chex.Array
@@ -90,6 +92,8 @@ class PlannerSpec:
     summary: one line for listings.
     blacklist_on_arrival: the engine blacklists a goal once the robot has reached the end of
       the path to it (Ahmed's FD), so it is never chosen again.
+    validate: optional host-side check of the resolved weights and config,
+      ``validate(weights: dict[str, array], params, config) -> None``, raising ``ConfigError``.
   """
 
   name: str
@@ -97,17 +101,19 @@ class PlannerSpec:
   defaults: dict
   summary: str
   blacklist_on_arrival: bool = False
+  validate: Callable | None = None
 
 
 _REGISTRY: dict[str, PlannerSpec] = {}
 
 
 def register(name: str, defaults: dict | None = None, summary: str = "",
-             blacklist_on_arrival: bool = False):
+             blacklist_on_arrival: bool = False, validate: Callable | None = None):
   """Decorator adding a plan function to the registry under ``name``."""
 
   def wrap(fn):
-    _REGISTRY[name] = PlannerSpec(name, fn, dict(defaults or {}), summary, blacklist_on_arrival)
+    _REGISTRY[name] = PlannerSpec(name, fn, dict(defaults or {}), summary, blacklist_on_arrival,
+                                  validate)
     return fn
 
   return wrap

@@ -39,7 +39,7 @@ def make_view(state, params, config):
   free, occ, unk = mapping.classify(jnp.asarray(l), params)
   inflated = mapping.inflate(occ, params.r_robot / config.res, config.max_inflation_cells)
   return base.BeliefView(logodds=jnp.asarray(l), entropy_map=jnp.zeros(l.shape), free=free, occupied=occ,
-                         unknown=unk, traversable=free & ~inflated,
+                         unknown=unk, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros(l.shape, bool))
 
 

@@ -1,0 +1,288 @@
+"""The entropy-boundary planner of Li et al. 2020 (Algorithm 1), as ``../shared/SPEC.md`` §3 reads it.
+
+One planning round for one robot:
+
+1. Boundary features by a 3x3 box sum (Eq 4): ``B_e`` = traversable cells whose smoothed entropy
+   ``I_e`` exceeds ``τ_e`` next to a cell that does not; ``B_g`` = traversable cells next to the
+   inflated obstacles.
+2. One weighted Dijkstra from the robot (Eq 8): entering a ``B_e`` cell costs ``k1`` times the
+   step length, a ``B_g`` cell ``k2`` times (``0 ≤ k1 < k2 < 1``; ``k1 = 0`` is allowed). Its
+   shortest-path tree holds every candidate path (to every reachable boundary cell).
+3. For every tree node at once, by pointer jumping over the tree (:mod:`jaxplore.graph.tree`):
+   - the dead-reckoning covariance Σ at the end of the path (Eq 16–17; the compounding
+     Jacobians of a path multiply to ``I + N(total displacement)``, so Σ reduces to a few running
+     sums along the path, see :func:`_covariance_from_sums`);
+   - the information gain of the path (Eq 20–21 as SPEC reads them): the expected decrease of
+     ``I_e`` over the union of cells within ``R_e`` of its waypoints, each cell once. A waypoint
+     adds the cells of its ``R_e`` disc that are not in its parent's disc (a "crescent"); this
+     counts every cell once unless a path leaves a cell's disc and later comes back into it
+     (only around obstacles thinner than ``2 R_e`` or at zig-zags of weighted paths), where that
+     cell is counted again. :func:`path_gain` computes the exact union for one path;
+   - the re-explore metric ``E_r`` (Eq 22) and the path length, the same way.
+4. Correction (Eq 18–19): det Σ never decreases along a path (Eq 14), so a candidate path is cut
+   at its last waypoint with ``det Σ ≤ det Σ_max``: its nearest such ancestor in the tree.
+5. Selection: the corrected path with the largest gain (``select = 0``) or gain per metre
+   (``select = 1``). If no path gains anything beyond what the robot sees where it stands, the
+   path with the largest re-explore metric (uncut: relocalising is its purpose) is taken while
+   frontiers remain or Σ is above its limit; otherwise nothing is left (the episode ends).
+6. Stop (Algorithm 1, line 23) when the average entropy of the observable belief falls below
+   ``E_min`` (0 disables it; the engine's coverage goal usually ends the episode first).
+
+Cells counted in the gain: known cells, and unknown cells within ``R_e`` of a free cell through
+unknown cells (:func:`observable_cells`). Unknown cells inside walls or outside the building can
+never be observed; counting them would pull the robot along walls forever.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplore import mapping
+from jaxplore.config import ConfigError
+from jaxplore.graph.dijkstra import extract_path, shortest_paths
+from jaxplore.graph.tree import nearest_ancestor, path_sums
+from jaxplore.planners import base
+
+DEFAULTS = {
+    "k1": 0.2,  # weight of edges into entropy boundaries B_e (Eq 8)
+    "k2": 0.6,  # weight of edges into grid-map boundaries B_g (Eq 8)
+    "tau_e": 0.6,  # entropy threshold of B_e, nats
+    # det Σ_max of Eq 19 (m²·m²·rad²). The paper gives no value; with its σ = 1 odometry model
+    # det Σ reaches ~1 after about a metre of grid path with turns, ~1e2 after a few metres.
+    "det_sigma_max": 1e2,
+    "select": 0.0,  # 0: max gain; 1: max gain per metre
+    "e_min": 0.0,  # stop when the average observable entropy falls below this (0: never)
+    "h0": math.log(2.0),  # H_0 of the re-explore metric, Eq 22
+}
+
+CHANNELS = ("gain", "reexplore", "length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
+
+
+def validate(weights, params, config):
+  k1, k2 = np.asarray(weights["k1"]), np.asarray(weights["k2"])
+  if np.any(k1 < 0) or np.any(k2 >= 1) or np.any(k1 >= k2):
+    raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got k1={k1}, k2={k2}")
+  if np.any(np.asarray(weights["det_sigma_max"]) <= 0):
+    raise ConfigError("li2020: det_sigma_max must be > 0")
+  if np.any(~np.isin(np.asarray(weights["select"]), [0.0, 1.0])):
+    raise ConfigError("li2020: select must be 0 (max gain) or 1 (max gain per metre)")
+  r_e = np.asarray(params.r_e) / config.res
+  if np.any(np.abs(r_e - config.gain_radius_cells) > 1e-4):
+    raise ConfigError(f"li2020: r_e fixes the shape of the gain kernel (SimConfig.gain_radius_cells="
+                      f"{config.gain_radius_cells * config.res:.3g} m) and cannot differ within a batch; "
+                      f"got r_e = {np.unique(np.asarray(params.r_e))} m")
+
+
+def boundaries(view: base.BeliefView, tau_e):
+  """(B_e, B_g) of Eq 4 with a 3x3 kernel of ones (n = 3)."""
+  high = view.entropy_map > tau_e
+  b_e = view.traversable & high & (mapping.neighbour_count(high, border=True) < 9)
+  b_g = view.traversable & mapping.any_neighbour(view.inflated & ~view.traversable, border=True)
+  return b_e, b_g
+
+
+def edge_weights(view: base.BeliefView, b_e, b_g, k1, k2):
+  """Node cost of Eq 8: edges into B_e scaled by k1, into B_g by k2, blocked off the traversable set."""
+  weight = jnp.where(b_e, k1, jnp.where(b_g, k2, 1.0))
+  return jnp.where(view.traversable, weight, jnp.inf).astype(jnp.float32)
+
+
+def disc_offsets(radius: float):
+  r = int(math.floor(radius))
+  return [(di, dj) for di in range(-r, r + 1) for dj in range(-r, r + 1)
+          if di * di + dj * dj <= radius * radius + 1e-9]
+
+
+def crescents(radius: float):
+  """For each parent direction d (parent = v + d): the disc offsets of v outside the parent's disc."""
+  disc = disc_offsets(radius)
+  return {d: [o for o in disc if (o[0] - d[0]) ** 2 + (o[1] - d[1]) ** 2 > radius * radius + 1e-9]
+          for d in mapping.NEIGHBOURS_8}
+
+
+def _shift_sum(field, offsets, pad):
+  """Σ_o field[i + o] for every cell (zero outside the grid); field [..., H, W]."""
+  h, w = field.shape[-2:]
+  framed = jnp.pad(field, [(0, 0)] * (field.ndim - 2) + [(pad, pad), (pad, pad)])
+  out = jnp.zeros(field.shape, field.dtype)
+  for di, dj in offsets:
+    out = out + jax.lax.slice_in_dim(jax.lax.slice_in_dim(framed, pad + di, pad + di + h, axis=-2),
+                                     pad + dj, pad + dj + w, axis=-1)
+  return out
+
+
+def observable_cells(view: base.BeliefView, radius: float):
+  """Known cells, and unknown cells reachable from a free cell through unknown cells (4-neighbour
+  steps, at most ``radius`` of them): what a robot passing by could observe. Unknown cells behind
+  observed walls (wall interiors, outside the building) are never reached."""
+  reach = view.free
+  for _ in range(int(math.ceil(radius))):
+    framed = mapping.frame(reach, False)
+    grown = reach
+    for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+      grown = grown | mapping.shifted(framed, di, dj)
+    reach = reach | (grown & view.unknown)
+  return ~view.unknown | reach
+
+
+def cell_gains(view: base.BeliefView, params, h0, radius: float):
+  """Per-cell expected entropy decrease (Eq 20–21 with SPEC's sign) and re-explore term (Eq 22).
+
+  ``H'(c) = k·H(c) + (1−k)·H_obs`` where ``H_obs`` is the entropy of a cell after one free
+  observation, so the gain of a cell is ``(1−k)·(H(c) − H_obs)`` where positive.
+  """
+  h = view.entropy_map
+  h_obs = mapping.entropy_of_logodds(params.l_free)
+  observable = observable_cells(view, radius)
+  gain = jnp.where(observable, (1.0 - params.entropy_k) * jnp.maximum(h - h_obs, 0.0), 0.0)
+  reexplore = jnp.where(observable, jnp.maximum(h0 - h, 0.0), 0.0)
+  return jnp.stack([gain, reexplore])
+
+
+def path_gain(gain_grid, cells, length, radius: float):
+  """Exact Eq 20 gain of one path: Σ of ``gain_grid`` over the union of R_e-discs of its waypoints.
+
+  Args:
+    gain_grid: f32[H, W] per-cell gain.
+    cells: i32[L, 2] waypoints; only the first ``length`` count.
+    radius: R_e in cells (static).
+  """
+  h, w = gain_grid.shape
+  covered = jnp.zeros((h, w), bool)
+  valid = jnp.arange(cells.shape[0]) < length
+  for di, dj in disc_offsets(radius):
+    r, c = cells[:, 0] + di, cells[:, 1] + dj
+    keep = valid & (r >= 0) & (r < h) & (c >= 0) & (c < w)
+    covered = covered.at[jnp.where(keep, r, h), jnp.where(keep, c, w)].set(True, mode="drop")
+  return jnp.sum(jnp.where(covered, gain_grid, 0.0))
+
+
+def _covariance_from_sums(sums, xy, xy_root, cov0):
+  """Σ at every node from the running sums of Eq 16–17 along its path.
+
+  Eq 17 unrolled: ``Σ_n = A_n Σ_0 A_nᵀ + Σ_m A_{n←m} V_m A_{n←m}ᵀ`` with ``A = Π J1 = I + N(Δ)``
+  (``N`` has ``−Δy, Δx`` in its last column, and ``N N' = 0``), and ``J2 V_m J2ᵀ = V_m`` because
+  V_m's x and y variances are equal. With ``a = (σ_d δd)²``, ``b = (σ_φ δφ)²`` and ``(dx, dy)``
+  the displacement from waypoint m to node n, the sum needs only Σa, Σb, Σbx, Σby, Σbx², Σby²,
+  Σbxy along the path. Returns f32[N, 3, 3].
+  """
+  s = {name: sums[:, i] for i, name in enumerate(CHANNELS)}
+  x, y = xy[:, 0], xy[:, 1]
+  sum_b_dx = x * s["b"] - s["bx"]
+  sum_b_dy = y * s["b"] - s["by"]
+  sum_b_dx2 = x * x * s["b"] - 2 * x * s["bx"] + s["bxx"]
+  sum_b_dy2 = y * y * s["b"] - 2 * y * s["by"] + s["byy"]
+  sum_b_dxdy = x * y * s["b"] - x * s["by"] - y * s["bx"] + s["bxy"]
+  q = jnp.stack([
+      jnp.stack([s["a"] + sum_b_dy2, -sum_b_dxdy, -sum_b_dy], -1),
+      jnp.stack([-sum_b_dxdy, s["a"] + sum_b_dx2, sum_b_dx], -1),
+      jnp.stack([-sum_b_dy, sum_b_dx, s["b"]], -1)], -2)
+  dx, dy = x - xy_root[0], y - xy_root[1]
+  one, zero = jnp.ones_like(dx), jnp.zeros_like(dx)
+  a = jnp.stack([jnp.stack([one, zero, -dy], -1), jnp.stack([zero, one, dx], -1),
+                 jnp.stack([zero, zero, one], -1)], -2)
+  return a @ cov0 @ jnp.swapaxes(a, -1, -2) + q
+
+
+def tree_quantities(config, view, robot, params, pred, gains):
+  """Per-node path sums (gain, re-explore, length, covariance terms) over the Dijkstra tree.
+
+  Returns (sums f32[H*W, C], covariance f32[H*W, 3, 3], xy f32[H*W, 2] in metres relative to
+  the robot cell).
+  """
+  h, w = config.height, config.width
+  res = config.res
+  pred_flat = pred.ravel()
+  idx = jnp.arange(h * w, dtype=jnp.int32)
+  rows, cols = idx // w, idx % w
+  has_parent = pred_flat >= 0
+  parent = jnp.where(has_parent, pred_flat, idx)
+  d_row, d_col = parent // w - rows, parent % w - cols  # toward the parent, in {-1, 0, 1}
+  root = robot.cell[0] * w + robot.cell[1]
+
+  # Heading of the move into each node; the root's is the robot's heading.
+  heading = jnp.where(has_parent, jnp.arctan2(-d_row.astype(jnp.float32), -d_col.astype(jnp.float32)),
+                      robot.pose[2])
+  parent_heading = heading[parent]  # the root's heading is the robot's
+  delta_phi = jnp.where(has_parent, jnp.arctan2(jnp.sin(heading - parent_heading),
+                                                jnp.cos(heading - parent_heading)), 0.0)
+  delta_d = jnp.where(has_parent, res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
+  xy = jnp.stack([(cols - robot.cell[1]) * res, (rows - robot.cell[0]) * res], -1).astype(jnp.float32)
+
+  # Crescent of new cells per parent direction (the root gets its whole disc).
+  radius = config.gain_radius_cells
+  pad = int(math.floor(radius)) + 1
+  new_cells = jnp.zeros((2, h * w), jnp.float32)
+  for (di, dj), offsets in crescents(radius).items():
+    field = _shift_sum(gains, offsets, pad).reshape(2, -1)
+    new_cells = jnp.where((d_row == di) & (d_col == dj), field, new_cells)
+  disc = jnp.asarray(disc_offsets(radius), jnp.int32)
+  disc_at_root = jnp.sum(gains.at[:, robot.cell[0] + disc[:, 0], robot.cell[1] + disc[:, 1]].get(
+      mode="fill", fill_value=0.0), axis=1)
+  new_cells = jnp.where(idx == root, disc_at_root[:, None], new_cells)
+
+  a = (params.sigma_d * delta_d) ** 2
+  b = (params.sigma_phi * delta_phi) ** 2
+  x, y = xy[:, 0], xy[:, 1]
+  values = jnp.stack([new_cells[0], new_cells[1], delta_d, a, b, b * x, b * y, b * x * x, b * y * y,
+                      b * x * y], -1)
+  sums = path_sums(pred_flat, values)
+  cov = _covariance_from_sums(sums, xy, jnp.zeros(2), robot.cov)
+  return sums, cov, xy
+
+
+def average_observable_entropy(view: base.BeliefView, radius: float):
+  observable = observable_cells(view, radius)
+  entropy = mapping.entropy_of_logodds(view.logodds)
+  return jnp.sum(jnp.where(observable, entropy, 0.0)) / jnp.maximum(jnp.sum(observable), 1)
+
+
+@base.register("li2020", defaults=DEFAULTS, validate=validate,
+               summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")
+def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key):
+  weights = params.planner
+  h, w = config.height, config.width
+  b_e, b_g = boundaries(view, weights["tau_e"])
+  sp = shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]), robot.cell,
+                      max_sweeps=config.dijkstra_max_sweeps)
+  reachable = jnp.isfinite(sp.dist).ravel()
+  gains = cell_gains(view, params, weights["h0"], config.gain_radius_cells)
+  sums, cov, _ = tree_quantities(config, view, robot, params, sp.pred, gains)
+  root = robot.cell[0] * w + robot.cell[1]
+  idx = jnp.arange(h * w, dtype=jnp.int32)
+
+  # Eq 18-19: cut every candidate at its last waypoint within the covariance limit.
+  within = (jnp.linalg.det(cov) <= weights["det_sigma_max"]) & reachable
+  boundary = (b_e | b_g).ravel() & reachable & (idx != root)
+  cut = nearest_ancestor(sp.pred.ravel(), within)
+  cut = jnp.where(boundary, cut, -1)
+  candidates = jnp.zeros((h * w,), bool).at[jnp.where(cut >= 0, cut, h * w)].set(True, mode="drop")
+  candidates = candidates & (idx != root)
+
+  gain, length, reexplore = sums[:, 0], sums[:, 2], sums[:, 1]
+  marginal = gain - gain[root]
+  score = jnp.where(weights["select"] > 0.5, marginal / jnp.maximum(length, config.res), marginal)
+  score = jnp.where(candidates & (marginal > 1e-6), score, -jnp.inf)
+  best = jnp.argmax(score)
+  explore = jnp.isfinite(score[best])
+
+  frontier_left = jnp.any(view.frontier.ravel() & reachable)
+  needs_reloc = jnp.linalg.det(robot.cov) > weights["det_sigma_max"]
+  fallback_score = jnp.where(boundary, reexplore, -jnp.inf)
+  fallback = jnp.argmax(fallback_score)
+  can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
+  converged = (weights["e_min"] > 0) & (average_observable_entropy(view, config.gain_radius_cells) < weights["e_min"])
+
+  chosen = jnp.where(explore, best, fallback)
+  valid = (explore | can_fallback) & ~converged
+  goal = jnp.stack([chosen // w, chosen % w]).astype(jnp.int32)
+  cells, length_wp = extract_path(sp.pred, goal, config.path_capacity)
+  look_at = base.unknown_neighbour(goal, view.unknown, view.occupied)
+  return base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32), goal=goal,
+                   look_at=look_at, valid=valid, gain=jnp.where(explore, gain[chosen], reexplore[chosen]),
+                   cost=sp.dist.ravel()[chosen] * config.res,
+                   n_candidates=jnp.sum(candidates).astype(jnp.int32))

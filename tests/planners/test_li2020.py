@@ -1,0 +1,212 @@
+"""Li et al. 2020's planner against oracles: NumPy Eq 4, SciPy Dijkstra, a NumPy loop of Eq 17,
+the exact union of swept cells (Eq 20)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from jaxplore import mapping
+from jaxplore.config import SimConfig, make_params
+from jaxplore.graph.dijkstra import extract_path, shortest_paths
+from jaxplore.planners import base, li2020
+
+H, W = 26, 34
+CONFIG = SimConfig(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
+                   gain_radius_cells=3.0)
+
+
+def weights(**kw):
+  w = dict(li2020.DEFAULTS, **kw)
+  return {k: jnp.float32(v) for k, v in w.items()}
+
+
+def belief(seed=0):
+  """A belief with free rooms, a wall, an unknown region and a patchy entropy map."""
+  rng = np.random.default_rng(seed)
+  state = np.zeros((H, W), int)  # 0 free, 1 occupied, 2 unknown
+  state[0, :] = state[-1, :] = state[:, 0] = state[:, -1] = 1
+  state[10, 5:25] = 1
+  state[:, 26:] = 2
+  state[18:22, 8:12] = 1
+  l = np.where(state == 0, -3.0, np.where(state == 1, 3.0, 0.0)).astype(np.float32)
+  entropy = np.where(state == 2, math.log(2), rng.uniform(0.1, 0.69, (H, W))).astype(np.float32)
+  entropy[3:8, 3:12] = 0.05  # a well-mapped patch
+  return state, l, entropy
+
+
+def make_view(l, entropy, params):
+  free, occ, unk = mapping.classify(jnp.asarray(l), params)
+  inflated = mapping.inflate(occ, params.r_robot / CONFIG.res, CONFIG.max_inflation_cells)
+  return base.BeliefView(logodds=jnp.asarray(l), entropy_map=jnp.asarray(entropy), free=free, occupied=occ,
+                         unknown=unk, inflated=inflated, traversable=free & ~inflated,
+                         frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros((H, W), bool))
+
+
+def params_for(**planner):
+  return make_params(r_robot=0.2, r_e=0.3, planner=dict(li2020.DEFAULTS, **planner))
+
+
+def robot_at(cell, theta=0.3, cov=1e-4):
+  return base.RobotView(pose=jnp.asarray([0.0, 0.0, theta], jnp.float32), cell=jnp.asarray(cell, jnp.int32),
+                        cov=jnp.eye(3, dtype=jnp.float32) * cov)
+
+
+def test_boundaries_match_numpy_reading_of_eq4():
+  params = params_for()
+  _, l, entropy = belief()
+  view = make_view(l, entropy, params)
+  tau = 0.4
+  b_e, b_g = li2020.boundaries(view, jnp.float32(tau))
+  trav = np.asarray(view.traversable)
+  high = entropy > tau
+  # conv of `high` with a 3x3 kernel of ones (outside counts as high: no boundary at the border)
+  conv = ndimage.convolve(high.astype(int), np.ones((3, 3), int), mode="constant", cval=1)
+  np.testing.assert_array_equal(np.asarray(b_e), trav & high & (conv < 9))
+  blocked = np.asarray(view.inflated) & ~trav
+  conv_g = ndimage.convolve(blocked.astype(int), np.ones((3, 3), int), mode="constant", cval=1)
+  np.testing.assert_array_equal(np.asarray(b_g), trav & (conv_g > 0))
+
+
+def scipy_graph(node_cost):
+  h, w = node_cost.shape
+  idx = np.arange(h * w).reshape(h, w)
+  rows, cols, data = [], [], []
+  for di in (-1, 0, 1):
+    for dj in (-1, 0, 1):
+      if (di, dj) == (0, 0):
+        continue
+      for i in range(h):
+        for j in range(w):
+          ii, jj = i + di, j + dj
+          if 0 <= ii < h and 0 <= jj < w and np.isfinite(node_cost[ii, jj]):
+            rows.append(idx[i, j]); cols.append(idx[ii, jj])
+            data.append((math.sqrt(2) if di and dj else 1.0) * node_cost[ii, jj])
+  # explicit zeros must survive: SciPy drops structural zeros, so add a tiny epsilon
+  data = np.asarray(data) + 0.0
+  return coo_matrix((np.where(data == 0, 1e-30, data), (rows, cols)), shape=(h * w, h * w)).tocsr()
+
+
+@pytest.mark.parametrize("k1", [0.0, 0.2])
+def test_weighted_dijkstra_matches_scipy_with_zero_weights(k1):
+  params = params_for()
+  _, l, entropy = belief(1)
+  view = make_view(l, entropy, params)
+  b_e, b_g = li2020.boundaries(view, jnp.float32(0.4))
+  cost = np.asarray(li2020.edge_weights(view, b_e, b_g, jnp.float32(k1), jnp.float32(0.6)))
+  if k1 == 0.0:
+    assert np.any(cost == 0.0)
+  start = (5, 15)
+  sp = shortest_paths(jnp.asarray(cost), jnp.asarray(start, jnp.int32))
+  ref = dijkstra(scipy_graph(cost), indices=start[0] * W + start[1]).reshape(H, W)
+  ref[start] = 0.0
+  np.testing.assert_allclose(np.asarray(sp.dist), ref, rtol=1e-5, atol=1e-5)
+
+
+def numpy_cov_along(cells, theta0, cov0, res, sigma_d, sigma_phi):
+  """Plain loop of Li Eq 12, 16, 17 along waypoints (δφ: heading change between segments)."""
+  cov = np.array(cov0, np.float64)
+  heading = theta0
+  covs = [cov]
+  for a, b in zip(cells[:-1], cells[1:]):
+    xa, ya = a[1] * res, a[0] * res
+    xb, yb = b[1] * res, b[0] * res
+    new_heading = math.atan2(yb - ya, xb - xa)
+    dphi = math.atan2(math.sin(new_heading - heading), math.cos(new_heading - heading))
+    dd = math.hypot(xb - xa, yb - ya)
+    j1 = np.array([[1, 0, ya - yb], [0, 1, xb - xa], [0, 0, 1]])
+    j2 = np.array([[math.cos(heading), -math.sin(heading), 0], [math.sin(heading), math.cos(heading), 0], [0, 0, 1]])
+    v = np.diag([(sigma_d * dd) ** 2, (sigma_d * dd) ** 2, (sigma_phi * dphi) ** 2])
+    cov = j1 @ cov @ j1.T + j2 @ v @ j2.T
+    covs.append(cov)
+    heading = new_heading
+  return covs
+
+
+def test_tree_covariance_matches_numpy_loop_of_eq17():
+  params = params_for()
+  params = params.replace(sigma_d=jnp.float32(0.5), sigma_phi=jnp.float32(0.3))
+  _, l, entropy = belief(2)
+  view = make_view(l, entropy, params)
+  b_e, b_g = li2020.boundaries(view, jnp.float32(0.4))
+  cost = li2020.edge_weights(view, b_e, b_g, jnp.float32(0.2), jnp.float32(0.6))
+  robot = robot_at((5, 15), theta=0.7, cov=2e-3)
+  sp = shortest_paths(cost, robot.cell)
+  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.gain_radius_cells)
+  sums, cov, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
+  rng = np.random.default_rng(0)
+  reachable = np.argwhere(np.isfinite(np.asarray(sp.dist)))
+  for goal in reachable[rng.choice(len(reachable), 12, replace=False)]:
+    cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
+    cells = np.asarray(cells)[: int(n)]
+    ref = numpy_cov_along(cells, 0.7, np.asarray(robot.cov), CONFIG.res, 0.5, 0.3)[-1]
+    got = np.asarray(cov[goal[0] * W + goal[1]])
+    np.testing.assert_allclose(got, ref, rtol=2e-3, atol=1e-7)
+    # path length is the sum of step lengths
+    steps = np.linalg.norm(np.diff(cells, axis=0), axis=1).sum() * CONFIG.res
+    np.testing.assert_allclose(float(sums[goal[0] * W + goal[1], 2]), steps, rtol=1e-5, atol=1e-6)
+
+
+def test_path_gain_counts_each_swept_cell_once():
+  rng = np.random.default_rng(3)
+  gain = jnp.asarray(rng.uniform(0, 1, (H, W)), jnp.float32)
+  forward = np.array([[10, c] for c in range(5, 20)])
+  back_and_forth = np.concatenate([forward, forward[::-1], forward])
+  pad = lambda c: jnp.asarray(np.pad(c, ((0, 64 - len(c)), (0, 0))), jnp.int32)
+  g1 = float(li2020.path_gain(gain, pad(forward), len(forward), 3.0))
+  g2 = float(li2020.path_gain(gain, pad(back_and_forth), len(back_and_forth), 3.0))
+  assert g1 == pytest.approx(g2)
+  # and equals a NumPy union of discs
+  covered = np.zeros((H, W), bool)
+  ii, jj = np.mgrid[0:H, 0:W]
+  for r, c in forward:
+    covered |= (ii - r) ** 2 + (jj - c) ** 2 <= 9.0
+  assert g1 == pytest.approx(float(np.asarray(gain)[covered].sum()), rel=1e-5)
+
+
+def test_tree_gain_equals_exact_union_on_open_ground():
+  params = params_for()
+  state, l, entropy = belief(4)
+  l[:, :] = -3.0
+  l[0, :] = l[-1, :] = l[:, 0] = l[:, -1] = 3.0
+  view = make_view(l, entropy, params)
+  cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
+  robot = robot_at((12, 15))
+  sp = shortest_paths(cost, robot.cell)
+  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.gain_radius_cells)
+  sums, _, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
+  for goal in [(12, 25), (4, 15), (20, 5), (5, 28)]:
+    cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
+    exact = float(li2020.path_gain(gains[0], cells, n, CONFIG.gain_radius_cells))
+    assert float(sums[goal[0] * W + goal[1], 0]) == pytest.approx(exact, rel=1e-4)
+
+
+@pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["eager", "jit"])
+@pytest.mark.parametrize("select", [0.0, 1.0])
+def test_plan_is_safe_and_within_the_covariance_limit(transform, select):
+  det_max = 1.0  # cuts candidate paths after about a metre here (most get cut)
+  params = params_for(select=select, det_sigma_max=det_max)
+  state, l, entropy = belief(5)
+  view = make_view(l, entropy, params)
+  robot = robot_at((5, 15), cov=1e-3)
+  plan = transform(lambda v, r: li2020.plan_li2020(CONFIG, v, r, params, jax.random.PRNGKey(0)))(view, robot)
+  assert bool(plan.valid) and int(plan.n_candidates) > 0  # an exploration plan, not the fallback
+  n = int(plan.length)
+  cells = np.asarray(plan.waypoints)[:n]
+  assert n >= 2 and tuple(cells[0]) == (5, 15)
+  assert (state[cells[:, 0], cells[:, 1]] == 0).all()  # never occupied or unknown
+  assert np.asarray(view.traversable)[cells[:, 0], cells[:, 1]].all()
+  covs = numpy_cov_along(cells, 0.3, np.asarray(robot.cov), CONFIG.res, 1.0, 1.0)
+  assert max(np.linalg.det(c) for c in covs) <= det_max * (1 + 1e-3)
+
+
+def test_k1_below_k2_is_enforced():
+  from jaxplore.config import ConfigError
+  with pytest.raises(ConfigError, match="k1 < k2"):
+    li2020.validate({k: np.asarray(v) for k, v in dict(li2020.DEFAULTS, k1=0.7, k2=0.6).items()},
+                    params_for(), CONFIG)
