@@ -54,6 +54,22 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
   run.add_argument("--no-progress", action="store_true")
 
+  sw = sub.add_parser("sweep", help="a parameter grid x seeds as one compiled batch")
+  sw.add_argument("--world", default="building")
+  sw.add_argument("--planner", default="li2020")
+  sw.add_argument("--grid", nargs="+", required=True, metavar="NAME=V1,V2,...",
+                  help="values of each swept parameter, e.g. alpha=1.0,1.5 k1=0,0.2 k2=0.6,0.9")
+  sw.add_argument("--seeds", type=int, default=8)
+  sw.add_argument("--preset", default="li2020")
+  sw.add_argument("--res", type=float, default=None)
+  sw.add_argument("--max-steps", type=int, default=None)
+  sw.add_argument("--replan-every", type=int, default=None)
+  sw.add_argument("--set", action="append", metavar="NAME=VALUE")
+  sw.add_argument("--planner-set", action="append", metavar="NAME=VALUE")
+  sw.add_argument("--out", default=None)
+  sw.add_argument("--devices", type=int, default=None)
+  sw.add_argument("--no-progress", action="store_true")
+
   maps = sub.add_parser("maps", help="list the built-in worlds, or render one to PNG")
   maps.add_argument("--render", default=None, metavar="WORLD", help="world name or YAML path")
   maps.add_argument("--res", type=float, default=None)
@@ -87,6 +103,36 @@ def main(argv=None) -> int:
     t = result.timing
     print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
           f"{t['robot_steps_per_s']:.0f} robot-steps/s")
+    if result.out is not None:
+      print(f"results in {result.out}")
+    return 0
+  if args.command == "sweep":
+    _set_devices(args.devices)
+    from jaxplore.config import ConfigError
+    from jaxplore.maps import MapError
+    from jaxplore.runner import sweep
+    grid = {}
+    for item in args.grid:
+      if "=" not in item:
+        print(f"jaxplore: error: --grid takes NAME=V1,V2,..., got {item!r}", file=sys.stderr)
+        return 2
+      name, values = item.split("=", 1)
+      try:
+        grid[name.strip()] = [float(v) for v in values.split(",") if v.strip()]
+      except ValueError:
+        print(f"jaxplore: error: --grid {name}: {values!r} is not a list of numbers", file=sys.stderr)
+        return 2
+    try:
+      result = sweep(grid, seeds=args.seeds, world=args.world, planner=args.planner, out=args.out,
+                     preset=args.preset, res=args.res, max_steps=args.max_steps,
+                     replan_every=args.replan_every, params=_key_values(args.set, "--set"),
+                     planner_params=_key_values(args.planner_set, "--planner-set"),
+                     progress=not args.no_progress, devices=args.devices)
+    except (ConfigError, MapError) as err:
+      print(f"jaxplore: error: {err}", file=sys.stderr)
+      return 2
+    t = result.timing
+    print(f"{len(result.episodes)} robot-episodes; compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s")
     if result.out is not None:
       print(f"results in {result.out}")
     return 0

@@ -100,3 +100,20 @@ def _save(fig, path: Path) -> Path:
   plt.close(fig)
   tmp.replace(path)
   return path
+
+
+def sweep_figure(episodes: pd.DataFrame, names, path) -> Path:
+  """E_r and coverage per sweep setting: mean ± std over seeds, one bar per setting."""
+  grouped = episodes.groupby(list(names), sort=True)
+  labels = [", ".join(f"{n}={v:g}" for n, v in zip(names, key if isinstance(key, tuple) else (key,)))
+            for key in grouped.groups]
+  fig, axes = plt.subplots(2, 1, figsize=(max(6, 0.45 * len(labels) + 2), 7), sharex=True)
+  for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre E_r (nats/m)"),
+                            (axes[1], "coverage", "coverage of reachable free area")):
+    mean, std = grouped[column].mean(), grouped[column].std().fillna(0.0)
+    ax.bar(range(len(labels)), mean.to_numpy(), yerr=std.to_numpy(), capsize=2, color="tab:blue", alpha=0.8)
+    ax.set_ylabel(title)
+  axes[1].set_xticks(range(len(labels)))
+  axes[1].set_xticklabels(labels, rotation=70, ha="right", fontsize=7)
+  axes[0].set_title("sweep: mean ± std over seeds")
+  return _save(fig, Path(path))

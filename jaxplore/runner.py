@@ -136,7 +136,7 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
 def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="li2020", res=None,
         start=None, max_steps=None, replan_every=None, params=None, planner_params=None,
         pose_noise=False, path_capacity=None, out=None, progress=True, devices=None,
-        chunk_epochs=None, rate_interval=1.0, quiet=False) -> RunResult:
+        chunk_epochs=None, rate_interval=1.0, quiet=False, robot_seeds=None) -> RunResult:
   """Runs ``robots`` robots exploring ``world`` with ``planner`` and returns/writes the results.
 
   Args:
@@ -156,6 +156,9 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
     devices: how many local devices to shard the batch over (default: all).
     chunk_epochs: planning rounds per compiled chunk (progress granularity).
     rate_interval: metres per interval for ``Std(E_r)``.
+    robot_seeds: optional list of one integer seed per robot (its PRNG key is ``PRNGKey(s)``), so
+      the same seed gives the same start in every setting of a sweep; default: ``robots`` keys
+      split from ``seed``.
   """
   grid, config, p, start_pose = prepare(world, planner, robots, seed, preset, res, start, max_steps,
                                         replan_every, params, planner_params, pose_noise,
@@ -171,7 +174,13 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
   n_dev = len(jax.devices()) if devices is None else max(1, min(int(devices), len(jax.devices())))
   n_dev = math.gcd(n_dev, robots) if robots % n_dev else n_dev
   params_b = sim.broadcast_params(p, robots)
-  keys = jax.random.split(jax.random.PRNGKey(seed), robots)
+  if robot_seeds is None:
+    keys = jax.random.split(jax.random.PRNGKey(seed), robots)
+  else:
+    robot_seeds = [int(s) for s in robot_seeds]
+    if len(robot_seeds) != robots:
+      raise ConfigError(f"robot_seeds has {len(robot_seeds)} seeds for {robots} robots")
+    keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray(robot_seeds, jnp.uint32))
   starts = None if start_pose is None else jnp.tile(jnp.asarray(start_pose, jnp.float32), (robots, 1))
   if chunk_epochs is None:
     chunk_epochs = max(1, min(config.n_epochs, 2000 // config.replan_every // 4 or 1))
@@ -218,7 +227,7 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
   episodes, curves = tables(config, grid, world_dev, p, state_np, records, rate_interval)
   episodes.insert(0, "planner", planner)
   episodes.insert(0, "world", grid.name)
-  episodes.insert(2, "seed", seed)
+  episodes.insert(2, "seed", seed if robot_seeds is None else robot_seeds)
   resolved = {
       "jaxplore_version": __version__, "jax_version": jax.__version__, "numpy_version": np.__version__,
       "python": platform.python_version(), "devices": [str(d) for d in jax.devices()],
@@ -316,3 +325,57 @@ def summary_table(episodes: pd.DataFrame) -> str:
       v = episodes[col].astype(float)
       lines.append(f"  {col:<18} {v.mean():12.4g} ± {v.std():<10.4g} {unit}  (min {v.min():.4g}, max {v.max():.4g})")
   return "\n".join(lines)
+
+
+def sweep(grid: dict, seeds: int = 8, world="building", planner="li2020", out=None, quiet=False,
+          **run_kwargs) -> RunResult:
+  """Every combination of ``grid`` values × ``seeds`` seeds as ONE batch (one compiled program).
+
+  Args:
+    grid: parameter name -> list of values; names are :class:`jaxplore.config.Params` fields or
+      the planner's weights (e.g. ``{"alpha": [1.0, 1.5], "k1": [0, 0.2], "k2": [0.6, 0.9]}``).
+    seeds: seeds per setting; seed ``s`` has the same start in every setting.
+    **run_kwargs: passed to :func:`run` (``params``/``planner_params`` give fixed values).
+  Returns:
+    The :class:`RunResult`; ``episodes`` has one column per swept parameter. With ``out``, also
+    writes ``sweep.png`` (E_r and coverage per setting, mean ± std over seeds).
+  """
+  import itertools
+  spec = get_planner(planner)
+  names = list(grid)
+  if not names:
+    raise ConfigError("sweep needs at least one parameter in the grid")
+  valid_names = set(dataclasses.asdict(Params()).keys()) - {"planner"}
+  for name in names:
+    if name not in valid_names and name not in spec.defaults:
+      raise ConfigError(f"cannot sweep {name!r}: not a simulator parameter nor a weight of planner "
+                        f"{planner!r} ({', '.join(sorted(spec.defaults)) or 'none'})")
+    if not len(grid[name]):
+      raise ConfigError(f"sweep grid for {name!r} is empty")
+  combos = list(itertools.product(*(list(grid[n]) for n in names)))
+  rows = [(combo, s) for combo in combos for s in range(int(seeds))]
+  params = dict(run_kwargs.pop("params", None) or {})
+  planner_params = dict(run_kwargs.pop("planner_params", None) or {})
+  for k, name in enumerate(names):
+    values = np.asarray([float(combo[k]) for combo, _ in rows], np.float32)
+    (planner_params if name in spec.defaults and name not in valid_names else params)[name] = values
+  result = run(world=world, planner=planner, robots=len(rows), params=params,
+               planner_params=planner_params, robot_seeds=[s for _, s in rows], quiet=True,
+               out=None, **run_kwargs)
+  for k, name in enumerate(names):
+    result.episodes.insert(3 + k, name, [float(combo[k]) for combo, _ in rows])
+  result.config["sweep"] = {"grid": {n: [float(v) for v in grid[n]] for n in names}, "seeds": int(seeds)}
+  if out is not None:
+    result.out = write_results(result, Path(out))
+    from jaxplore import plot
+    plot.sweep_figure(result.episodes, names, Path(out) / "sweep.png")
+  if not quiet:
+    print(sweep_table(result.episodes, names))
+  return result
+
+
+def sweep_table(episodes: pd.DataFrame, names) -> str:
+  """Mean ± std of the headline metrics per setting."""
+  table = metrics.summarise(episodes, names, ["E_r", "Std_E_r", "distance_m", "coverage", "time_s"])
+  cols = list(names) + [c for c in table.columns if c.endswith("_mean") or c.endswith("_std")]
+  return table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}")

@@ -107,3 +107,28 @@ def test_cli_errors_are_one_clear_line(capsys):
   assert cli.main(["run", "--world", "atlantis", "--no-progress"]) == 2
   err = capsys.readouterr().err
   assert err.startswith("jaxplore: error:") and "atlantis" in err
+
+
+def test_sweep_is_one_batch_with_parameter_columns(tmp_path):
+  from jaxplore.runner import sweep
+  result = sweep({"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}, seeds=2, world="lab", planner="li2020",
+                 max_steps=12, replan_every=4, params={"r_max": 3.0}, progress=False,
+                 out=tmp_path / "sweep", quiet=True)
+  episodes = result.episodes
+  assert len(episodes) == 8
+  assert sorted(set(zip(episodes.alpha, episodes.k1))) == [(1.0, 0.0), (1.0, 0.3), (2.0, 0.0), (2.0, 0.3)]
+  assert (tmp_path / "sweep" / "sweep.png").exists()
+  # the same seed starts at the same pose in every setting (common random numbers)
+  first = result.curves[result.curves.step == 1].set_index("robot")
+  seeds = episodes.set_index("robot").seed
+  for s in (0, 1):
+    robots = seeds[seeds == s].index
+    assert first.loc[robots, "x"].nunique() == 1 and first.loc[robots, "y"].nunique() == 1
+
+
+def test_sweep_refuses_unknown_names_and_bad_weights():
+  from jaxplore.runner import sweep
+  with pytest.raises(ConfigError, match="cannot sweep 'gamma'"):
+    sweep({"gamma": [1.0]}, seeds=1, world="lab", planner="li2020", max_steps=10, progress=False)
+  with pytest.raises(ConfigError, match="k1 < k2"):
+    sweep({"k1": [0.9]}, seeds=1, world="lab", planner="li2020", max_steps=10, progress=False)

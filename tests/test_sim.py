@@ -78,16 +78,29 @@ def test_same_keys_same_numbers(rooms, rooms_run):
   chex.assert_trees_all_equal(state.logodds, state2.logodds)
 
 
-def test_changing_a_traced_parameter_does_not_retrace(rooms):
-  config, world, params = setup(rooms, max_steps=12)
+@pytest.mark.parametrize("planner", ["nearest_frontier", "li2020"])
+def test_changing_a_traced_parameter_does_not_retrace(rooms, planner):
+  import dataclasses
+  from jaxplore.planners import get_planner
+  grid = rooms
+  weights = get_planner(planner).defaults
+  base = make_params("li2020", res=grid.res, r_max=3.0, planner=weights)
+  config = dataclasses.replace(config_for(grid.shape, grid.res, base, max_steps=12, replan_every=6),
+                               planner=planner, max_update_radius_cells=30)
+  world = sim.make_world(grid, float(base.r_robot))
+  params = sim.broadcast_params(base, ROBOTS)
   keys = jax.random.split(jax.random.PRNGKey(1), ROBOTS)
   state = sim.reset_batch(config, world, params, keys)
   chex.clear_trace_counter()
   advance = jax.jit(chex.assert_max_traces(sim.advance_unjitted, n=1), static_argnames=("config", "n_epochs"))
   advance(config, world, params, state, n_epochs=2)
-  for name, value in (("v_max", 0.4), ("r_max", 2.0), ("alpha", 1.0), ("l_free", -0.5)):
+  changes = [("v_max", 0.4), ("r_max", 2.0), ("alpha", 1.0), ("l_free", -0.5)]
+  for name, value in changes:
     changed = params.replace(**{name: jnp.full((ROBOTS,), value, jnp.float32)})
     out, _ = advance(config, world, changed, state, n_epochs=2)
+  for name in weights:
+    planner_weights = dict(params.planner, **{name: params.planner[name] * 0.5})
+    out, _ = advance(config, world, params.replace(planner=planner_weights), state, n_epochs=2)
   jax.block_until_ready(out)
 
 
