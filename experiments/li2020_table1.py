@@ -1,0 +1,114 @@
+"""Li et al. 2020, Table 1 and Figure 7: li2020 vs nearest frontier on built-in and real maps.
+
+Table 1's columns (entropy reduction, distance, E_r, Std(E_r), coverage area), mean ± std over
+seeds, for each world and planner, with the paper's sensor preset (15 m, 190°, 0.25 m/s); and
+Figure 7 (map entropy vs distance travelled, mean over seeds). Every (world, planner) pair is one
+batched ``jaxplore.run`` call; robots of a pair differ only in their seed (start pose).
+
+Usage:
+  python experiments/li2020_table1.py            # 16 seeds, all worlds (long: see the estimate)
+  python experiments/li2020_table1.py --quick    # 2 seeds, 2 worlds, short budget (a smoke run)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "maps"
+RESULTS = HERE / "results"
+
+WORLDS = {
+    # name -> (world spec, resolution or None for native)
+    "lab": ("lab", None),
+    "building": ("building", None),
+    "campus": ("campus", None),
+    "intel": (str(SHARED / "intel.yaml"), 0.2),
+    "willow": (str(SHARED / "willow.yaml"), 0.2),
+    "mit_killian": (str(SHARED / "mit_killian.yaml"), 0.5),
+}
+PLANNERS = ("li2020", "nearest_frontier")
+COLUMNS = [("entropy_reduction", "entropy reduction (nats)"), ("distance_m", "distance (m)"),
+           ("E_r", "E_r (nats/m)"), ("Std_E_r", "Std(E_r) (nats/m)"), ("coverage_m2", "coverage (m²)"),
+           ("coverage", "coverage (fraction)"), ("time_s", "time (s)")]
+
+
+def main(argv=None):
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--seeds", type=int, default=16)
+  parser.add_argument("--worlds", default=",".join(WORLDS))
+  parser.add_argument("--max-steps", type=int, default=None)
+  parser.add_argument("--devices", type=int, default=2)
+  parser.add_argument("--quick", action="store_true")
+  parser.add_argument("--out", default=str(RESULTS / "li2020_table1"))
+  args = parser.parse_args(argv)
+  if args.quick:
+    args.seeds, args.worlds, args.max_steps = 2, "lab,intel", args.max_steps or 150
+  os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
+
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  import numpy as np
+  import pandas as pd
+
+  import jaxplore
+  from jaxplore import plot
+
+  out = Path(args.out)
+  out.mkdir(parents=True, exist_ok=True)
+  episodes, curves = [], []
+  started = time.perf_counter()
+  for world in args.worlds.split(","):
+    spec, res = WORLDS[world]
+    for planner in PLANNERS:
+      t0 = time.perf_counter()
+      result = jaxplore.run(world=spec, planner=planner, robots=args.seeds, seed=0, preset="li2020",
+                            res=res, max_steps=args.max_steps, progress=False, quiet=True,
+                            robot_seeds=list(range(args.seeds)), devices=args.devices)
+      e = result.episodes.assign(world=world)
+      c = result.curves.assign(world=world, planner=planner)
+      episodes.append(e)
+      curves.append(c)
+      reasons = e.reason.value_counts().to_dict()
+      print(f"{world:12s} {planner:17s} {time.perf_counter() - t0:7.1f} s  {reasons}", flush=True)
+  episodes = pd.concat(episodes, ignore_index=True)
+  curves = pd.concat(curves, ignore_index=True)
+  episodes.to_parquet(out / "episodes.parquet", index=False)
+  curves.to_parquet(out / "curves.parquet", index=False)
+
+  lines = ["| world | planner | " + " | ".join(label for _, label in COLUMNS) + " | complete |",
+           "|---|---|" + "---|" * (len(COLUMNS) + 1)]
+  for (world, planner), g in episodes.groupby(["world", "planner"], sort=False):
+    cells = [f"{g[c].mean():.4g} ± {g[c].std():.3g}" for c, _ in COLUMNS]
+    lines.append(f"| {world} | {planner} | " + " | ".join(cells) +
+                 f" | {int((g.reason == 'complete').sum())}/{len(g)} |")
+  table = "\n".join(lines)
+
+  worlds = list(dict.fromkeys(episodes.world))
+  fig, axes = plt.subplots(1, len(worlds), figsize=(4.2 * len(worlds), 3.6), squeeze=False)
+  for ax, world in zip(axes[0], worlds):
+    for planner in PLANNERS:
+      c = curves[(curves.world == world) & (curves.planner == planner)]
+      plot.spread(ax, c, "distance", "entropy", label=planner)
+    ax.set_title(world)
+    ax.set_xlabel("distance (m)")
+  axes[0][0].set_ylabel("map entropy (nats)")
+  axes[0][-1].legend()
+  fig.suptitle("Figure 7: map entropy vs distance (mean, 10–90 % band over seeds)")
+  fig.tight_layout()
+  fig.savefig(RESULTS / "li2020_figure7.png", dpi=110)
+
+  header = (f"Li et al. 2020 Table 1 layout, {args.seeds} seeds per cell, preset li2020, "
+            f"command: python experiments/li2020_table1.py {' '.join(argv or sys.argv[1:])}\n"
+            f"total wall time {time.perf_counter() - started:.0f} s\n\n")
+  (RESULTS / "li2020_table1.md").write_text(header + table + "\n")
+  print(table)
+
+
+if __name__ == "__main__":
+  main()
