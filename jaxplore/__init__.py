@@ -1,7 +1,7 @@
 """jaxplore: a JAX-vectorised, batched simulator for autonomous exploration and active SLAM.
 
 ``jaxplore.run(...)`` runs a batch of robots on a world and returns the tables (see
-:func:`jaxplore.runner.run`). Submodules: ``maps``, ``sensor``, ``mapping``, ``motion``, ``graph``,
+:func:`jaxplore.runner.run`); ``jaxplore.sweep(...)`` runs a parameter grid as one batch. Submodules: ``maps``, ``sensor``, ``mapping``, ``motion``, ``graph``,
 ``planners``, ``sim``, ``metrics``, ``plot``, ``cli``.
 
 Importing jaxplore does not import JAX, so the command line can set ``XLA_FLAGS`` (host device
@@ -12,13 +12,13 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name):
-  if name == "run":
-    from jaxplore.runner import run
-    return run
+  if name in ("run", "sweep"):
+    from jaxplore import runner
+    return getattr(runner, name)
   if name == "RunResult":
     from jaxplore.runner import RunResult
     return RunResult
   raise AttributeError(f"module 'jaxplore' has no attribute {name!r}")
 
 
-__all__ = ["run", "RunResult", "__version__"]
+__all__ = ["run", "sweep", "RunResult", "__version__"]
