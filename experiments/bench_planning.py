@@ -1,0 +1,80 @@
+"""Planning time per round for a batch of robots: li2020 vs nearest frontier, side by side.
+
+Both planners plan for the same robots in the same belief states (taken after a few motion
+steps on a ~200x200-cell world), in one process; compile time is reported separately.
+
+Usage: python experiments/bench_planning.py [--robots 256] [--world open] [--devices 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def main(argv=None):
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--robots", type=int, default=256)
+  parser.add_argument("--world", default="open")
+  parser.add_argument("--warm-steps", type=int, default=40)
+  parser.add_argument("--repeats", type=int, default=3)
+  parser.add_argument("--devices", type=int, default=2)
+  args = parser.parse_args(argv)
+  os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
+  import dataclasses
+
+  import jax
+  import numpy as np
+  from jax.sharding import Mesh, PartitionSpec as P
+
+  from jaxplore import runner, sim
+  from jaxplore.planners import get_planner
+
+  rows = []
+  states = None
+  for planner in ("nearest_frontier", "li2020"):
+    grid, config, params, _ = runner.prepare(world=args.world, planner=planner, robots=args.robots,
+                                             max_steps=args.warm_steps + 8,
+                                             planner_params=dict(get_planner(planner).defaults))
+    world = sim.make_world(grid, float(params.r_robot))
+    params_b = sim.broadcast_params(params, args.robots)
+    if states is None:  # the same belief states for both planners
+      keys = jax.random.split(jax.random.PRNGKey(0), args.robots)
+      states = sim.reset_batch(config, world, params_b, keys)
+      states, _ = sim.advance(config, world, params_b, states, args.warm_steps // config.replan_every)
+    n_dev = min(args.devices, len(jax.devices()))
+    plan_one = lambda p, s: sim.plan(config, world, p, s)
+    fn = lambda p, s: sim._batched(plan_one, config.plan_chunk)(p, s)
+    if n_dev > 1:
+      mesh = Mesh(np.array(jax.devices()[:n_dev]), ("robots",))
+      fn = jax.shard_map(fn, mesh=mesh, in_specs=(P("robots"), P("robots")), out_specs=P("robots"),
+                         check_vma=False)
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(params_b, states).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(params_b, states))
+    t0 = time.perf_counter()
+    for _ in range(args.repeats):
+      out = compiled(params_b, states)
+    jax.block_until_ready(out)
+    per_round = (time.perf_counter() - t0) / args.repeats
+    rows.append((planner, compile_s, per_round, per_round / args.robots * 1e3))
+    print(f"{planner:17s} compile {compile_s:6.1f} s   {per_round * 1e3:8.1f} ms per round   "
+          f"{per_round / args.robots * 1e3:6.2f} ms per robot", flush=True)
+  base = rows[0][2]
+  table = ["| planner | compile s | ms per planning round | ms per robot | vs nearest frontier |",
+           "|---|---|---|---|---|"]
+  table += [f"| {p} | {c:.1f} | {r * 1e3:.1f} | {m:.2f} | {r / base:.2f}x |" for p, c, r, m in rows]
+  text = (f"Planning time, {args.robots} robots on `{args.world}`, {n_dev} device(s), same belief states; "
+          f"command: python experiments/bench_planning.py {' '.join(argv or [])}\n\n" + "\n".join(table) + "\n")
+  (HERE / "results").mkdir(exist_ok=True)
+  (HERE / "results" / "bench_planning.md").write_text(text)
+  print(text)
+
+
+if __name__ == "__main__":
+  main()
