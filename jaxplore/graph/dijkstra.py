@@ -8,10 +8,10 @@ Distances: min-plus (Bellman-Ford) relaxation scheduled as *cone sweeping*. A lo
 rows relaxes every cell of a row from the 3 cells of the row above (the cells of one row do not
 depend on each other, so a step is one vector operation), then a loop up the rows, then the
 same over the columns, left to right and right to left. One *round* of these 4 sweeps carries
-every shortest path at least two moves further, and all the way along any stretch of it whose
-moves agree with a sweep's direction, so open rooms converge in a handful of rounds; rounds
-repeat in a ``lax.while_loop`` until one changes nothing. Values only ever decrease, and every
-finite value is the float32 length of a real path.
+a shortest path along every stretch of it whose moves agree with a sweep's direction, so open
+rooms converge in a handful of rounds (mazes, whose paths turn at every corridor, need
+hundreds); rounds repeat in a ``lax.while_loop`` until one changes nothing. Values only ever
+decrease, and every finite value is the float32 length of a real path.
 
 Predecessors are chosen once, from the converged distances: a cell points at a neighbour with
 a strictly smaller distance whose edge is tight. Strictly smaller distances make the field a
@@ -30,7 +30,11 @@ Performance notes (XLA:CPU, measured by ``experiments/bench_dijkstra.py``):
   during the sweeps tripled the cost of each row step.
 * Column sweeps run on the transposed array; with C minor, that transpose moves C-float blocks
   and is several times cheaper than transposing a ``[C, H, W]`` stack.
-* Unrolling the row loop makes XLA copy the whole array every step: keep ``unroll=1``.
+* Unrolling the row loop (``fori_loop(..., unroll=k)``) made XLA copy the whole array at
+  every step, 10-100x slower.
+* The distances alone are swept; predecessors come from one stencil pass at the end, since
+  XLA:CPU has no multi-output loop fusion and a second output per row step costs a second
+  pass over its inputs.
 """
 
 from __future__ import annotations
@@ -76,41 +80,50 @@ class ShortestPaths(NamedTuple):
 
 
 def default_max_sweeps(height: int, width: int) -> int:
-  """The default bound on rounds for an H x W grid: ``H * W // 4 + 2``.
+  """The default bound on rounds for an H x W grid: ``H * W``, which no input can exceed.
 
-  Each round moves every shortest path at least two moves on (two consecutive moves are
-  never both against the order of the 4 sweeps), and a shortest path over positive costs has
-  fewer than ``H * W / 2`` moves, so this bound is a safety net that real maps do not reach:
-  room-like 256 x 256 worlds take ~5 rounds and 256 x 256 mazes with 3-cell corridors ~150.
+  Take a shortest path with the fewest moves: it visits no cell twice, so it has at most
+  ``H * W - 1`` moves, and each round fixes at least its next move (every move goes along one
+  of the 4 sweeps), so the last round needed is followed by one that changes nothing. Real maps
+  stop long before: ~5 rounds for 256 x 256 room-like worlds, ~150 for 256 x 256 mazes.
   """
-  return height * width // 4 + 2
+  return height * width
 
 
-def _sweep(dist: jax.Array, cost: jax.Array, reverse: bool) -> jax.Array:
-  """One sweep over the lines (axis 0) of a framed ``[N + 2, M + 2, C]`` array, in place.
+def _sweep_there_and_back(dist: jax.Array, cost: jax.Array) -> jax.Array:
+  """Two sweeps over the lines (axis 0) of a framed ``[N + 2, M + 2, C]`` array, in place.
 
-  Line ``i`` (1..N) becomes ``min(itself, relaxation from the 3 neighbours in line i - 1)``
-  (``i + 1`` when ``reverse``), using the line already updated by this sweep.
+  Steps 0..N-1 go forward: line ``i`` = 1..N becomes the min of itself and the relaxation from
+  the 3 neighbours in line ``i - 1`` (already updated). Steps N..2N-1 come back from line N to
+  line 1, relaxing from line ``i + 1``.
   """
   num_lines, line_length = dist.shape[0] - 2, dist.shape[1] - 2
   diag_factor = jnp.float32(_SQRT2)
 
   def relax_line(step, dist):
-    line = num_lines - step if reverse else step + 1
-    previous = lax.dynamic_index_in_dim(dist, line + 1 if reverse else line - 1, keepdims=False)
+    forward = step < num_lines
+    line = jnp.where(forward, step + 1, 2 * num_lines - step)
+    previous_line = jnp.where(forward, line - 1, line + 1)
+    previous = lax.dynamic_index_in_dim(dist, previous_line, keepdims=False)
     old = lax.dynamic_index_in_dim(dist, line, keepdims=False)[1 : line_length + 1]
     step_cost = lax.dynamic_index_in_dim(cost, line, keepdims=False)[1 : line_length + 1]
     straight = previous[1 : line_length + 1] + step_cost
-    # min before adding is exact: rounding is monotone, so fl(min(a, b) + x) = min(fl(a + x), fl(b + x)).
+    # Taking the min before adding is exact: rounding is monotone, so
+    # fl(min(a, b) + x) = min(fl(a + x), fl(b + x)).
     diagonal = jnp.minimum(previous[:line_length], previous[2:]) + step_cost * diag_factor
     new = jnp.minimum(old, jnp.minimum(straight, diagonal))
     return lax.dynamic_update_slice(dist, new[None], (line, 1, 0))
 
-  return lax.fori_loop(0, num_lines, relax_line, dist)
+  return lax.fori_loop(0, 2 * num_lines, relax_line, dist)
 
 
 def _tight_predecessors(dist: jax.Array, node_cost: jax.Array, source: jax.Array) -> jax.Array:
   """Predecessors from converged distances.
+
+  A cell points at a neighbour over a tight edge that is strictly closer to the source, or,
+  on a plateau of equal distances, at a neighbour attached in an earlier step of a
+  breadth-first search; following ``pred`` thus strictly decreases (distance, step) and
+  cannot cycle. Without plateaus the search stops after checking once.
 
   Args:
     dist: f32[C, H + 2, W + 2]; converged distances in an inf frame.
@@ -120,49 +133,59 @@ def _tight_predecessors(dist: jax.Array, node_cost: jax.Array, source: jax.Array
   Returns:
     i32[C, H, W] flat predecessor indices, -1 at sources and unreachable cells.
   """
-  num_maps, height, width = node_cost.shape
+  _, height, width = node_cost.shape
   here = dist[:, 1:-1, 1:-1]
-  diag_cost = node_cost * jnp.float32(_SQRT2)
-  tight_bound = here + here * jnp.float32(_TIGHT_RTOL)
   rows = lax.broadcasted_iota(jnp.int32, here.shape, 1)
   cols = lax.broadcasted_iota(jnp.int32, here.shape, 2)
   flat = rows * width + cols
   is_source = (rows == source[:, 0, None, None]) & (cols == source[:, 1, None, None])
-
-  def neighbour_dist(dr, dc):
-    return dist[:, 1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
-
-  def arrival(dr, dc):
-    return neighbour_dist(dr, dc) + (diag_cost if dr and dc else node_cost)
-
-  # Any tight edge from a strictly closer neighbour will do; the first one found is kept.
-  pred = jnp.full(here.shape, -1, jnp.int32)
-  for dr, dc in reversed(_NEIGHBOURS):
-    tight_and_closer = (neighbour_dist(dr, dc) < here) & (arrival(dr, dc) <= tight_bound)
-    pred = jnp.where(tight_and_closer, flat + (dr * width + dc), pred)
   unreachable = jnp.isinf(here)
-  pred = jnp.where(is_source | unreachable, -1, pred)
+
+  def window(framed, dr, dc):
+    return framed[:, 1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
+
+  def choose(usable, dist, node_cost, flat):
+    """The first neighbour k (in _NEIGHBOURS order) with a tight edge and usable(k, neighbour)."""
+    here = window(dist, 0, 0)
+    tight_bound = here + here * jnp.float32(_TIGHT_RTOL)
+    pred = jnp.full_like(flat, -1)
+    for k, (dr, dc) in reversed(list(enumerate(_NEIGHBOURS))):
+      neighbour = window(dist, dr, dc)
+      step_cost = node_cost * jnp.float32(_SQRT2) if dr and dc else node_cost
+      tight = neighbour + step_cost <= tight_bound
+      pred = jnp.where(tight & usable(k, neighbour, here), flat + (dr * width + dc), pred)
+    return pred
+
+  pred = choose(lambda k, neighbour, here: neighbour < here, dist, node_cost, flat)
+  # Materialised here, the choice is not recomputed by each of its readers below.
+  pred = lax.optimization_barrier(jnp.where(is_source | unreachable, -1, pred))
   attached = (pred >= 0) | is_source | unreachable
 
-  # Plateaus: grow the tree over tight equal-distance edges, one layer per step.
   def grow(carry):
     pred, attached, _ = carry
-    framed = jnp.pad(attached, ((0, 0), (1, 1), (1, 1)))
-    new_pred = pred
-    for dr, dc in reversed(_NEIGHBOURS):
-      neighbour_attached = framed[:, 1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
-      flat_tight = (neighbour_dist(dr, dc) <= here) & (arrival(dr, dc) <= tight_bound)
-      new_pred = jnp.where(~attached & neighbour_attached & flat_tight, flat + (dr * width + dc), new_pred)
-    newly_attached = (new_pred >= 0) & ~attached
-    return new_pred, attached | newly_attached, jnp.any(newly_attached)
+    attached_framed = jnp.pad(attached, ((0, 0), (1, 1), (1, 1)))
 
-  pred, _, _ = lax.while_loop(lambda carry: carry[2], grow, (pred, attached, ~jnp.all(attached)))
+    def level_and_attached(k, neighbour, here):
+      dr, dc = _NEIGHBOURS[k]
+      return (neighbour == here) & window(attached_framed, dr, dc) & ~attached
+
+    # Tied to the loop-varying `attached` by a barrier, these inputs look loop-varying: XLA
+    # would otherwise hoist the tight-edge tests out of the loop, run them even when the loop
+    # never iterates, and materialise what they share with the choice above.
+    inputs = lax.optimization_barrier((dist, node_cost, flat, attached))[:3]
+    new_pred = lax.optimization_barrier(choose(level_and_attached, *inputs))
+    newly_attached = (new_pred >= 0) & ~attached
+    pred = jnp.where(newly_attached, new_pred, pred)
+    return pred, attached | newly_attached, jnp.any(newly_attached)
+
+  plateau = ~jnp.all(attached)
+  pred, _, _ = lax.while_loop(lambda carry: carry[2], grow, (pred, attached, plateau))
   return pred
 
 
+@functools.partial(jax.jit, static_argnames="max_sweeps")
 def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> ShortestPaths:
   """Shortest paths for C grids at once; fields of the result have a leading axis C."""
-  num_maps, height, width = node_cost.shape
   inf = jnp.float32(jnp.inf)
   framed_cost = jnp.pad(node_cost.transpose(1, 2, 0), ((1, 1), (1, 1), (0, 0)), constant_values=inf)
   # The barrier keeps XLA from fusing the interleaving transpose into every reader.
@@ -170,15 +193,12 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> Sh
   cost_cols = cost_rows.transpose(1, 0, 2)
   rows = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 0)
   cols = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 1)
-  at_source = (rows == source[:, 0] + 1) & (cols == source[:, 1] + 1)
+  at_source = (rows == source[None, None, :, 0] + 1) & (cols == source[None, None, :, 1] + 1)
   dist = jnp.where(at_source, jnp.float32(0), inf)
 
   def one_round(dist):
-    dist = _sweep(dist, cost_rows, reverse=False)
-    dist = _sweep(dist, cost_rows, reverse=True)
-    dist = dist.transpose(1, 0, 2)
-    dist = _sweep(dist, cost_cols, reverse=False)
-    dist = _sweep(dist, cost_cols, reverse=True)
+    dist = _sweep_there_and_back(dist, cost_rows)
+    dist = _sweep_there_and_back(dist.transpose(1, 0, 2), cost_cols)
     return dist.transpose(1, 0, 2)
 
   def not_done(carry):
@@ -193,7 +213,8 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> Sh
     changed = jnp.any(new_dist < dist, axis=(0, 1))
     return new_dist, rounds + 1, active & changed, sweeps + active.astype(jnp.int32)
 
-  init = (dist, jnp.int32(0), jnp.ones((num_maps,), bool), jnp.zeros((num_maps,), jnp.int32))
+  # *_like keeps the carry's type equal to the body's output under shard_map (varying axes).
+  init = (dist, jnp.int32(0), jnp.ones_like(source[:, 0], bool), jnp.zeros_like(source[:, 0]))
   dist, _, active, sweeps = lax.while_loop(not_done, body, init)
   dist = lax.optimization_barrier(dist.transpose(2, 0, 1))
   pred = _tight_predecessors(dist, node_cost, source)
@@ -228,11 +249,17 @@ def shortest_paths_batched(
   batch, height, width = node_cost.shape
   if max_sweeps is None:
     max_sweeps = default_max_sweeps(height, width)
-  chunk = max(1, min(chunk, batch))
+  return _solve_in_chunks(node_cost, source, max(1, min(chunk, batch)), int(max_sweeps))
+
+
+@functools.partial(jax.jit, static_argnames=("chunk", "max_sweeps"))
+def _solve_in_chunks(node_cost, source, chunk: int, max_sweeps: int) -> ShortestPaths:
+  batch, height, width = node_cost.shape
   num_chunks = -(-batch // chunk)
   padding = num_chunks * chunk - batch
   if padding:
-    node_cost = jnp.concatenate([node_cost, jnp.full((padding, height, width), jnp.inf, jnp.float32)])
+    blocked = jnp.full((padding, height, width), jnp.inf, jnp.float32)
+    node_cost = jnp.concatenate([node_cost, blocked])
     source = jnp.concatenate([source, jnp.zeros((padding, 2), jnp.int32)])
   result = lax.map(
       lambda args: _solve_chunk(*args, max_sweeps=max_sweeps),
@@ -292,6 +319,7 @@ def shortest_paths(
   return _single_grid_solver(int(max_sweeps))(node_cost, source)
 
 
+@functools.partial(jax.jit, static_argnames="capacity")
 def extract_path(
     pred: jax.Array,
     goal: jax.Array,
@@ -320,6 +348,8 @@ def extract_path(
       ``length`` are -1.
     length: i32[]; number of valid cells: min(cells on the path, capacity); 0 if unreachable.
   """
+  if capacity < 1:
+    raise ValueError(f"capacity must be at least 1, got {capacity}")
   height, width = pred.shape
   pred_flat = jnp.asarray(pred, jnp.int32).reshape(-1)
   goal = jnp.asarray(goal, jnp.int32)
@@ -334,8 +364,10 @@ def extract_path(
     ring = ring.at[visited % capacity].set(cell)
     return pred_flat[cell], visited + 1, ring
 
-  ring = jnp.full((capacity,), -1, jnp.int32)
-  cell, visited, ring = lax.while_loop(not_done, walk_back, (goal_flat, jnp.int32(0), ring))
+  # *_like keeps the carry's type equal to the body's output under shard_map (varying axes).
+  ring = jnp.full_like(goal_flat, -1, shape=(capacity,))
+  init = (goal_flat, jnp.zeros_like(goal_flat), ring)
+  cell, visited, ring = lax.while_loop(not_done, walk_back, init)
   root = ring[(visited - 1) % capacity]
   if source is None:
     # After a single visit the goal itself has pred -1: it is the source or unreachable.
