@@ -162,3 +162,23 @@ def test_start_inside_wall_or_outside_is_refused(rooms):
     sim.make_world(rooms, 0.2, (30.0, 1.0))
   with pytest.raises(ConfigError, match="closer than the robot radius"):
     sim.make_world(rooms, 0.2, (0.15, 2.0))
+
+
+def test_robot_inside_newly_inflated_walls_can_drive_out(rooms):
+  # The belief says a wall is right next to the robot (inside its radius): it must still be able
+  # to drive out of the inflated zone instead of ending `exhausted`.
+  from jaxplore.graph.dijkstra import shortest_paths
+  config, world, params = setup(rooms, max_steps=30)
+  starts = jnp.tile(jnp.asarray([1.05, 2.05, 0.0]), (ROBOTS, 1))
+  state = sim.reset_batch(config, world, params, jax.random.split(jax.random.PRNGKey(6), ROBOTS), starts)
+  state = state.replace(logodds=state.logodds.at[:, 20, 11].set(5.0))  # a believed wall 0.1 m away
+  planned = jax.jit(jax.vmap(lambda p, s: sim.plan(config, world, p, s)))(params, state)
+  assert not np.asarray(planned.done).any()
+  one, p0 = jax.tree.map(lambda x: x[0], state), jax.tree.map(lambda x: x[0], params)
+  robot = sim.robot_view(config, world, one)
+  view = sim.belief_view(config, p0, one, robot.cell)
+  assert bool(view.inflated[20, 10]) and bool(view.traversable[20, 10])
+  sp = shortest_paths(jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32), robot.cell)
+  clear = np.asarray(view.free & ~view.inflated)
+  reached = np.isfinite(np.asarray(sp.dist)) & clear
+  assert reached.sum() > 0.9 * clear.sum()  # everything clear of walls is reachable from inside
