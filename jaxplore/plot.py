@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import matplotlib
 
-matplotlib.use("Agg")
+# Figures go to files; an explicit MPLBACKEND (Jupyter's kernel sets its inline backend there)
+# is kept so figures a notebook draws still show.
+if not os.environ.get("MPLBACKEND"):
+  matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
@@ -17,20 +21,27 @@ def _extent(shape, res, origin):
   return (origin[0], origin[0] + w * res, origin[1], origin[1] + h * res)
 
 
-def belief_map(ax, occupied, logodds, res, origin, curves=None, robots=(0,)):
-  """The belief of one robot over the truth, with the trajectories of ``robots``.
-
-  Truth walls are drawn dark grey, believed-free cells white, believed-occupied black, unknown
-  light grey.
-  """
-  prob = 1.0 / (1.0 + np.exp(-logodds.astype(np.float32)))
+def belief_rgb(occupied, logodds) -> np.ndarray:
+  """float[H, W, 3] image of a belief over the truth: believed-free cells white, believed-occupied
+  black, unknown light grey, and truth walls not yet mapped blue-grey."""
+  prob = 1.0 / (1.0 + np.exp(-np.asarray(logodds, np.float32)))
   shade = np.full(prob.shape, 0.82)
   shade[prob < 0.35] = 1.0
   shade[prob > 0.65] = 0.0
   rgb = np.repeat(shade[..., None], 3, axis=-1)
   unknown_wall = (np.abs(prob - 0.5) < 0.15) & occupied
   rgb[unknown_wall] = (0.55, 0.55, 0.6)
-  ax.imshow(rgb, origin="lower", extent=_extent(occupied.shape, res, origin), interpolation="nearest")
+  return rgb
+
+
+def belief_map(ax, occupied, logodds, res, origin, curves=None, robots=(0,)):
+  """The belief of one robot over the truth, with the trajectories of ``robots``.
+
+  Truth walls are drawn dark grey, believed-free cells white, believed-occupied black, unknown
+  light grey.
+  """
+  ax.imshow(belief_rgb(occupied, logodds), origin="lower", extent=_extent(occupied.shape, res, origin),
+            interpolation="nearest")
   if curves is not None and len(curves):
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, r in enumerate(robots):
