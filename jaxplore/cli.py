@@ -77,6 +77,20 @@ def build_parser() -> argparse.ArgumentParser:
 
   plot = sub.add_parser("plot", help="redraw the figures of a results folder")
   plot.add_argument("run_dir")
+
+  anim = sub.add_parser("animate", help="GIF/MP4 of chosen robots of a run (re-simulated)",
+                        description="Re-simulates the chosen robots of a results folder from its "
+                        "config.json, checks the replay against curves.parquet, and draws belief, "
+                        "trajectory and current path per robot, one frame per planning round or "
+                        "every N steps.")
+  anim.add_argument("run_dir")
+  anim.add_argument("--robots", default="0", help="comma-separated robot indices (default: 0)")
+  anim.add_argument("--every", type=int, default=None,
+                    help="steps between frames, rounded up to whole planning rounds "
+                    "(default: at most 150 frames)")
+  anim.add_argument("--out", default=None, help="FILE.gif or FILE.mp4 (default: RUN_DIR/animation_<robots>.gif)")
+  anim.add_argument("--fps", type=float, default=8.0)
+  anim.add_argument("--no-progress", action="store_true")
   return parser
 
 
@@ -155,6 +169,18 @@ def main(argv=None) -> int:
       print(f"{r['name']:<11} {r['width_cells']:>5} x {r['height_cells']:<4} {r['res']:>5.2g} "
             f"{r['width_m']:>5.1f} x {r['height_m']:<5.1f} {r['free_m2']:>8.0f} {r['reachable_m2']:>12.0f}"
             f"  {r['description']}")
+    return 0
+  if args.command == "animate":
+    from jaxplore.animate import animate
+    from jaxplore.config import ConfigError
+    from jaxplore.maps import MapError
+    try:
+      path = animate(args.run_dir, robots=args.robots, out=args.out, every=args.every, fps=args.fps,
+                     progress=not args.no_progress)
+    except (ConfigError, MapError) as err:
+      print(f"jaxplore: error: {err}", file=sys.stderr)
+      return 2
+    print(f"wrote {path}")
     return 0
   if args.command == "plot":
     from jaxplore import plot

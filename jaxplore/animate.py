@@ -1,0 +1,373 @@
+"""Animations of a saved run: belief map, trajectory and current path of chosen robots over time.
+
+A results folder keeps only the final belief of a few robots, so :func:`animate` *re-simulates* the
+chosen robots from ``config.json`` (same static config, same parameter values, same PRNG keys: a
+run is reproducible) and checks that the replayed trajectory equals the ``x``, ``y`` columns of
+``curves.parquet`` before drawing anything, so the animation shows the run that was recorded.
+
+Frames are taken between planning rounds (every ``replan_every`` motion steps at the finest); each
+shows, per robot, its log-odds belief over the truth, its trajectory so far (at step resolution),
+the rest of the path it is following and its goal.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from jaxplore.config import PARAM_FIELDS, ConfigError
+
+MAX_FRAMES = 150  # default frame budget: --every is chosen so an animation has at most this many
+TOLERANCE_M = 1e-4  # replayed and recorded positions must agree to this (metres)
+WRITERS = {".gif": "pillow", ".mp4": "ffmpeg"}
+
+
+@dataclasses.dataclass
+class Replay:
+  """The chosen robots re-simulated, with snapshots between planning rounds.
+
+  Attributes:
+    robots: indices of the robots in the run (panel order).
+    config: the run's ``config.json``.
+    occupied, res, origin: the truth map.
+    x, y: f64[T, R] replayed positions after every step (T = steps replayed).
+    steps_recorded: int[R] steps of each robot in ``curves.parquet`` (its last is its done step).
+    frames: snapshots, each a dict with ``step`` (int), ``logodds`` f16[R, H, W],
+      ``waypoints`` i32[R, L, 2], ``path_len``, ``path_idx`` i32[R], ``goal`` i32[R, 2],
+      ``pose`` f32[R, 3], ``time``, ``coverage`` f32[R], ``done`` bool[R], ``reason`` i32[R].
+    max_deviation_m: largest |replayed − recorded| position over the recorded steps.
+  """
+
+  robots: tuple
+  config: dict
+  occupied: np.ndarray
+  res: float
+  origin: np.ndarray
+  x: np.ndarray
+  y: np.ndarray
+  steps_recorded: np.ndarray
+  frames: list
+  max_deviation_m: float
+
+
+def load_run(run_dir) -> tuple[Path, dict, pd.DataFrame, pd.DataFrame]:
+  """(run_dir, config, episodes, curves) of a results folder written by ``jaxplore run --out``.
+
+  Raises:
+    ConfigError: the folder or one of its files is missing.
+  """
+  run_dir = Path(run_dir)
+  if not run_dir.is_dir():
+    raise ConfigError(f"run directory {str(run_dir)!r} does not exist")
+  missing = [n for n in ("config.json", "episodes.parquet", "curves.parquet", "maps.npz")
+             if not (run_dir / n).is_file()]
+  if missing:
+    raise ConfigError(f"{str(run_dir)!r} is not a results folder of `jaxplore run --out`: "
+                      f"{', '.join(missing)} missing")
+  config = json.loads((run_dir / "config.json").read_text())
+  for key in ("sim_config", "params", "planner_params", "robots", "seed"):
+    if key not in config:
+      raise ConfigError(f"{run_dir / 'config.json'} has no {key!r}; it was not written by `jaxplore run`")
+  return (run_dir, config, pd.read_parquet(run_dir / "episodes.parquet"),
+          pd.read_parquet(run_dir / "curves.parquet"))
+
+
+def parse_robots(robots, n_robots: int) -> tuple[int, ...]:
+  """Robot indices from ``"0,1,2"`` or a sequence of ints, checked against the run's batch size."""
+  if isinstance(robots, (int, np.integer)):
+    robots = (robots,)
+  if isinstance(robots, str):
+    try:
+      robots = [int(r) for r in robots.split(",") if r.strip()]
+    except ValueError:
+      raise ConfigError(f"robots must be comma-separated integers like 0,1,2, got {robots!r}") from None
+  robots = tuple(int(r) for r in robots)
+  if not robots:
+    raise ConfigError("choose at least one robot to animate")
+  bad = [r for r in robots if not 0 <= r < n_robots]
+  if bad:
+    raise ConfigError(f"robot index {bad[0]} is out of range: the run has {n_robots} robots "
+                      f"(0..{n_robots - 1})")
+  if len(set(robots)) != len(robots):
+    raise ConfigError(f"robot indices repeat: {list(robots)}")
+  return robots
+
+
+def _robot_seeds(config: dict, episodes: pd.DataFrame):
+  """One integer seed per robot of a run made with ``robot_seeds`` (sweeps), else None."""
+  if config.get("robot_seeds") is not None:
+    return [int(s) for s in config["robot_seeds"]]
+  if "sweep" in config:  # sweeps pass robot_seeds; episodes record them in the seed column
+    by_robot = episodes.sort_values("robot")
+    return [int(s) for s in by_robot["seed"]]
+  return None
+
+
+def _select(value, robots, n_robots, name):
+  """A stored parameter for the chosen robots: a scalar, or one value per robot of the run."""
+  arr = np.asarray(value, np.float32)
+  if arr.ndim == 0:
+    return arr
+  if arr.shape != (n_robots,):
+    raise ConfigError(f"config.json: parameter {name} has {arr.shape[0]} values for {n_robots} robots")
+  return arr[list(robots)]
+
+
+def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, progress: bool = True,
+               check: bool = True) -> Replay:
+  """Re-runs the chosen robots of a saved run and snapshots them between planning rounds.
+
+  Args:
+    run_dir: a results folder of ``jaxplore run --out`` (or ``jaxplore sweep --out``).
+    robots: robot indices (ints or ``"0,1,2"``).
+    every: motion steps between frames, rounded up to a multiple of ``replan_every``; default:
+      the smallest such multiple that keeps at most ``max_frames`` frames.
+    progress: show a progress bar.
+    check: raise if the replayed trajectory differs from ``curves.parquet``.
+  Raises:
+    ConfigError: bad folder or robot index; with ``check``, a replay that does not reproduce the
+      recorded trajectory (e.g. a different JAX version changed the numbers).
+  """
+  run_dir, config, episodes, curves = load_run(run_dir)
+  n_robots = int(config["robots"])
+  robots = parse_robots(robots, n_robots)
+  if every is not None and not (isinstance(every, (int, np.integer)) and every >= 1):
+    raise ConfigError(f"every must be a positive number of steps, got {every!r}")
+
+  import jax
+  import jax.numpy as jnp
+
+  from jaxplore import sim
+  from jaxplore.config import Params, SimConfig
+  from jaxplore.maps import GridMap
+
+  sim_config = SimConfig(**config["sim_config"])
+  stored = np.load(run_dir / "maps.npz")
+  grid = GridMap(stored["occupied"], float(stored["res"]), tuple(np.asarray(stored["origin"]).tolist()),
+                 config.get("world", {}).get("name", "map"))
+  values = {k: v for k, v in config["params"].items() if k in PARAM_FIELDS}
+  planner_values = config["planner_params"]
+  # The run built its World with the largest robot radius of the whole batch.
+  r_robot = float(np.max(np.asarray(values["r_robot"], np.float32)))
+  start = config.get("start")
+  world = sim.make_world(grid, r_robot, None if start is None else start[:2])
+  params = Params(**{k: jnp.asarray(_select(v, robots, n_robots, k)) for k, v in values.items()},
+                  planner={k: jnp.asarray(_select(v, robots, n_robots, k)) for k, v in planner_values.items()})
+  params = sim.broadcast_params(params, len(robots))
+
+  seeds = _robot_seeds(config, episodes)
+  if seeds is None:
+    keys = jax.random.split(jax.random.PRNGKey(int(config["seed"])), n_robots)[jnp.asarray(robots)]
+  else:
+    if len(seeds) != n_robots:
+      raise ConfigError(f"{run_dir} records {len(seeds)} robot seeds for {n_robots} robots")
+    keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray([seeds[r] for r in robots], jnp.uint32))
+  starts = None if start is None else jnp.tile(jnp.asarray(start, jnp.float32), (len(robots), 1))
+
+  recorded = curves.groupby("robot").step.max()
+  steps_recorded = np.asarray([int(recorded.get(r, 0)) for r in robots])
+  total_steps = int(steps_recorded.max())
+  per_epoch = sim_config.replan_every
+  n_epochs = max(1, -(-total_steps // per_epoch))
+  if every is None:
+    every_epochs = max(1, -(-n_epochs // max(1, max_frames - 1)))
+  else:
+    every_epochs = max(1, -(-int(every) // per_epoch))
+
+  def snapshot(state, step):
+    frame = {name: np.asarray(getattr(state, name)) for name in
+             ("logodds", "waypoints", "path_len", "path_idx", "goal", "pose", "time", "done", "reason")}
+    frame["logodds"] = frame["logodds"].astype(np.float16)
+    frame["coverage"] = np.asarray(state.covered) / float(world.n_reachable)
+    frame["step"] = step
+    return frame
+
+  state = sim.reset_batch(sim_config, world, params, keys, starts)
+  frames = [snapshot(state, 0)]
+  xs, ys = [], []
+  bar = None
+  if progress:
+    from tqdm.auto import tqdm
+    bar = tqdm(total=n_epochs * per_epoch, unit="step", desc=f"replaying robots {','.join(map(str, robots))}")
+  try:
+    for k in range(1, n_epochs + 1):
+      state, rec = sim.advance(sim_config, world, params, state, n_epochs=1)
+      xs.append(np.asarray(rec.x, np.float64))
+      ys.append(np.asarray(rec.y, np.float64))
+      if k % every_epochs == 0 or k == n_epochs:
+        frames.append(snapshot(state, k * per_epoch))
+      if bar is not None:
+        bar.update(per_epoch)
+  finally:
+    if bar is not None:
+      bar.close()
+  x, y = np.concatenate(xs), np.concatenate(ys)
+
+  deviation = 0.0
+  for j, r in enumerate(robots):
+    curve = curves[curves.robot == r].sort_values("step")
+    n = len(curve)
+    if n == 0:
+      continue
+    dev = np.hypot(x[:n, j] - curve.x.to_numpy(), y[:n, j] - curve.y.to_numpy())
+    deviation = max(deviation, float(dev.max()))
+    if check and dev.max() > TOLERANCE_M:
+      first = int(np.argmax(dev > TOLERANCE_M))
+      raise ConfigError(
+          f"the replay of robot {r} leaves the recorded trajectory at step {first + 1} "
+          f"(by {dev[first]:.3g} m, at most {dev.max():.3g} m); the run was made with JAX "
+          f"{config.get('jax_version', '?')} and jaxplore {config.get('jaxplore_version', '?')}, "
+          f"this is JAX {jax.__version__}: an animation would not show the recorded run")
+  return Replay(robots=robots, config=config, occupied=grid.occupied, res=grid.res,
+                origin=np.asarray(grid.origin), x=x, y=y, steps_recorded=steps_recorded,
+                frames=frames, max_deviation_m=deviation)
+
+
+def _cells_to_xy(cells, res, origin):
+  """i32[..., 2] (row, col) -> (x, y) arrays of cell centres in metres."""
+  cells = np.asarray(cells)
+  return origin[0] + (cells[..., 1] + 0.5) * res, origin[1] + (cells[..., 0] + 0.5) * res
+
+
+def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool = True) -> Path:
+  """Draws ``replay`` to a GIF (Pillow) or MP4 (ffmpeg) at ``out``; written atomically."""
+  out = Path(out)
+  writer_name = _writer_name(out)
+  import matplotlib.pyplot as plt
+  from matplotlib import animation
+
+  from jaxplore import plot, sim  # plot picks the Agg backend unless MPLBACKEND says otherwise
+
+  robots, n = replay.robots, len(replay.robots)
+  h, w = replay.occupied.shape
+  extent = (replay.origin[0], replay.origin[0] + w * replay.res,
+            replay.origin[1], replay.origin[1] + h * replay.res)
+  ncols = min(n, 3)
+  nrows = -(-n // ncols)
+  panel_w = 4.0
+  panel_h = max(1.5, min(6.0, panel_w * h / w)) + 0.5
+  fig, axes = plt.subplots(nrows, ncols, figsize=(panel_w * ncols, panel_h * nrows), squeeze=False)
+  colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+  artists = []
+  for j, r in enumerate(robots):
+    ax = axes[j // ncols][j % ncols]
+    colour = colours[j % len(colours)]
+    image = ax.imshow(plot.belief_rgb(replay.occupied, replay.frames[0]["logodds"][j]), origin="lower",
+                      extent=extent, interpolation="nearest")
+    trail, = ax.plot([], [], lw=1.2, color=colour, label="trajectory")
+    path, = ax.plot([], [], lw=1.0, ls="--", color="tab:red", label="current path")
+    goal, = ax.plot([], [], "x", ms=7, mew=2, color="tab:red", label="goal")
+    robot, = ax.plot([], [], "o", ms=5, color=colour, mec="k")
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=7)
+    if j == 0:
+      ax.legend(loc="upper right", fontsize=6, framealpha=0.8)
+    artists.append((ax, image, trail, path, goal, robot))
+  for j in range(n, nrows * ncols):
+    axes[j // ncols][j % ncols].axis("off")
+  title = fig.suptitle("")
+  fig.tight_layout()
+
+  def draw(frame):
+    step = frame["step"]
+    for j, r in enumerate(robots):
+      ax, image, trail, path, goal, robot = artists[j]
+      image.set_data(plot.belief_rgb(replay.occupied, frame["logodds"][j]))
+      shown = min(step, int(replay.steps_recorded[j]))
+      trail.set_data(replay.x[:shown, j], replay.y[:shown, j])
+      pose = frame["pose"][j]
+      robot.set_data([pose[0]], [pose[1]])
+      idx, length = int(frame["path_idx"][j]), int(frame["path_len"][j])
+      if idx < length and not frame["done"][j]:
+        px, py = _cells_to_xy(frame["waypoints"][j][idx:length], replay.res, replay.origin)
+        path.set_data(np.concatenate([[pose[0]], px]), np.concatenate([[pose[1]], py]))
+      else:
+        path.set_data([], [])
+      g = frame["goal"][j]
+      if g[0] >= 0 and not frame["done"][j]:
+        gx, gy = _cells_to_xy(g, replay.res, replay.origin)
+        goal.set_data([gx], [gy])
+      else:
+        goal.set_data([], [])
+      status = sim.REASONS[int(frame["reason"][j])] if frame["done"][j] else "exploring"
+      ax.set_title(f"robot {r}: {float(frame['time'][j]):.0f} s, coverage "
+                   f"{100 * float(frame['coverage'][j]):.0f} % ({status})", fontsize=8)
+    title.set_text(f"{replay.config.get('planner', '')} on {replay.config.get('world', {}).get('name', '')}"
+                   f", step {step}")
+
+  if writer_name == "pillow":
+    writer = animation.PillowWriter(fps=fps)
+  else:
+    writer = animation.FFMpegWriter(fps=fps, codec="h264", extra_args=["-pix_fmt", "yuv420p"])
+  out.parent.mkdir(parents=True, exist_ok=True)
+  tmp = out.with_name(out.stem + ".tmp" + out.suffix)
+  bar = None
+  if progress:
+    from tqdm.auto import tqdm
+    bar = tqdm(total=len(replay.frames), unit="frame", desc=f"rendering {out.name}")
+  try:
+    with writer.saving(fig, str(tmp), dpi):
+      for frame in replay.frames:
+        draw(frame)
+        writer.grab_frame()
+        if bar is not None:
+          bar.update(1)
+  except BaseException:
+    tmp.unlink(missing_ok=True)
+    raise
+  finally:
+    if bar is not None:
+      bar.close()
+    plt.close(fig)
+  tmp.replace(out)
+  return out
+
+
+def _writer_name(out: Path) -> str:
+  suffix = out.suffix.lower()
+  if suffix not in WRITERS:
+    raise ConfigError(f"cannot write {str(out)!r}: the animation file must end in "
+                      f"{' or '.join(WRITERS)}")
+  name = WRITERS[suffix]
+  if name == "ffmpeg":
+    from matplotlib import animation
+    if not animation.FFMpegWriter.isAvailable():
+      raise ConfigError(f"writing {str(out)!r} needs ffmpeg, which is not on PATH; install ffmpeg "
+                        "or write a .gif instead")
+  return name
+
+
+def animate(run_dir, robots=(0,), out=None, every=None, fps: float = 8.0, progress: bool = True) -> Path:
+  """Writes an animation of robots of a saved run and returns its path.
+
+  Args:
+    run_dir: a results folder of ``jaxplore run --out``.
+    robots: robot indices, e.g. ``(0, 1, 2)`` or ``"0,1,2"``; one panel each.
+    out: ``.gif`` (Pillow) or ``.mp4`` (needs ffmpeg); default
+      ``RUN_DIR/animation_<robots>.gif``.
+    every: motion steps between frames (rounded up to whole planning rounds); default: at most
+      :data:`MAX_FRAMES` frames.
+    fps: frames per second.
+  Raises:
+    ConfigError: missing folder or file, robot index out of range, unknown file type, MP4 without
+      ffmpeg, or a replay that does not reproduce the recorded trajectory.
+  """
+  run_dir = Path(run_dir)
+  if out is not None:
+    _writer_name(Path(out))  # refuse a bad file name before the replay
+  if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+    raise ConfigError(f"fps must be a positive number, got {fps!r}")
+  replay = resimulate(run_dir, robots, every=every, progress=progress)
+  if out is None:
+    out = run_dir / f"animation_{'-'.join(map(str, replay.robots))}.gif"
+  return render(replay, out, fps=fps, progress=progress)
+
+
+__all__ = ["Replay", "animate", "load_run", "parse_robots", "render", "resimulate"]

@@ -1,0 +1,103 @@
+"""``jaxplore animate``: the replay reproduces the recorded run, the GIF has frames, bad input is refused."""
+
+import re
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+import jaxplore
+from jaxplore import animate, cli
+from jaxplore.config import ConfigError
+from jaxplore.maps import generate
+
+# Two rooms and a door, so paths bend. The shapes and settings are those of the quickstart
+# notebook's tiny run (tests/test_notebooks.py), so one process compiles the run only once; the
+# seed differs (a traced value).
+WORLD = generate.office(8.0, 6.0, res=0.2, seed=0, name="tiny_office")
+SETTINGS = dict(robots=2, seed=3, max_steps=40, replan_every=5, params={"r_max": 3.0},
+                progress=False, quiet=True)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+  out = tmp_path_factory.mktemp("anim_run")
+  jaxplore.run(world=WORLD, out=out, **SETTINGS)
+  return out
+
+
+def test_replay_reproduces_the_recorded_trajectory(run_dir):
+  curves = pd.read_parquet(run_dir / "curves.parquet")
+  replay = animate.resimulate(run_dir, (1, 0), progress=False)
+  assert replay.robots == (1, 0)
+  for j, robot in enumerate(replay.robots):
+    curve = curves[curves.robot == robot].sort_values("step")
+    n = len(curve)
+    assert n > 10 and curve.distance.iloc[-1] > 0.5  # the robot really moved
+    np.testing.assert_allclose(replay.x[:n, j], curve.x.to_numpy(), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(replay.y[:n, j], curve.y.to_numpy(), rtol=0, atol=1e-6)
+  assert replay.max_deviation_m <= 1e-6
+  # Frames start at the reset, then one per planning round (the default keeps them all here).
+  assert [f["step"] for f in replay.frames] == list(range(0, 41, 5))
+  first, last = replay.frames[0], replay.frames[-1]
+  assert np.count_nonzero(last["logodds"]) > np.count_nonzero(first["logodds"])  # the map grew
+
+
+def test_animate_writes_a_gif_with_frames(run_dir, tmp_path):
+  out = animate.animate(run_dir, robots="0,1", out=tmp_path / "anim.gif", every=10, progress=False)
+  assert out == tmp_path / "anim.gif" and out.is_file()
+  assert not list(tmp_path.glob("*.tmp*"))
+  with Image.open(out) as gif:
+    assert gif.format == "GIF"
+    # every=10 steps = every 2nd planning round of 5 steps: steps 0, 10, 20, 30, 40.
+    assert gif.n_frames == 5
+    gif.seek(0)
+    start = np.asarray(gif.convert("RGB"), np.int16)
+    gif.seek(gif.n_frames - 1)
+    end = np.asarray(gif.convert("RGB"), np.int16)
+  assert np.abs(start - end).sum() > 0  # the picture changes over time
+
+
+def test_a_tampered_trajectory_is_refused(run_dir, tmp_path):
+  copy = tmp_path / "copy"
+  shutil.copytree(run_dir, copy)
+  curves = pd.read_parquet(copy / "curves.parquet")
+  curves.loc[(curves.robot == 1) & (curves.step > 20), "x"] += 0.05
+  curves.to_parquet(copy / "curves.parquet", index=False)
+  with pytest.raises(ConfigError, match="robot 1 leaves the recorded trajectory at step 21"):
+    animate.resimulate(copy, (0, 1), progress=False)
+
+
+def test_cli_animate_writes_the_default_file(run_dir, capsys):
+  assert cli.main(["animate", str(run_dir), "--robots", "0,1", "--every", "20", "--no-progress"]) == 0
+  path = run_dir / "animation_0-1.gif"
+  assert f"wrote {path}" in capsys.readouterr().out
+  with Image.open(path) as gif:
+    assert gif.n_frames == 3  # steps 0, 20, 40
+
+
+@pytest.mark.parametrize("make_args, match", [
+    (lambda d, t: [str(t / "nowhere")], "does not exist"),
+    (lambda d, t: [str(t)], "config.json.*missing"),
+    (lambda d, t: [str(d), "--robots", "0,2"], "robot index 2 is out of range: the run has 2 robots"),
+    (lambda d, t: [str(d), "--robots", "-1"], "robot index -1 is out of range"),
+    (lambda d, t: [str(d), "--robots", "0,x"], "comma-separated integers"),
+    (lambda d, t: [str(d), "--robots", "1,1"], "repeat"),
+    (lambda d, t: [str(d), "--out", str(t / "a.avi")], r"must end in \.gif or \.mp4"),
+    (lambda d, t: [str(d), "--every", "0"], "every must be a positive"),
+    (lambda d, t: [str(d), "--fps", "0"], "fps must be a positive"),
+])
+def test_bad_input_is_refused_with_a_clear_error(run_dir, tmp_path, capsys, make_args, match):
+  assert cli.main(["animate", *make_args(run_dir, tmp_path), "--no-progress"]) == 2
+  err = capsys.readouterr().err
+  assert err.startswith("jaxplore: error: ")
+  assert re.search(match, err), err
+
+
+def test_mp4_without_ffmpeg_is_refused(run_dir, tmp_path, monkeypatch):
+  from matplotlib import animation as mpl_animation
+  monkeypatch.setattr(mpl_animation.FFMpegWriter, "isAvailable", classmethod(lambda cls: False))
+  with pytest.raises(ConfigError, match="needs ffmpeg"):
+    animate.animate(run_dir, (0,), out=tmp_path / "a.mp4", progress=False)
