@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -101,6 +102,12 @@ def run_figures(run_dir) -> list[Path]:
   ax.set_ylim(0, 1.02)
   ax.set_title("coverage vs time (mean, 10–90 % band)")
   written.append(_save(fig, run_dir / "coverage_time.png"))
+
+  sweep = (json.loads((run_dir / "config.json").read_text()).get("sweep")
+           if (run_dir / "config.json").exists() else None)
+  if sweep and sweep.get("figure_names"):
+    episodes = pd.read_parquet(run_dir / "episodes.parquet")
+    written.append(sweep_figure(episodes, sweep["figure_names"], run_dir / "sweep.png"))
   return written
 
 
@@ -114,9 +121,14 @@ def _save(fig, path: Path) -> Path:
 
 
 def sweep_figure(episodes: pd.DataFrame, names, path) -> Path:
-  """E_r and coverage per sweep setting: mean ± std over seeds, one bar per setting."""
-  grouped = episodes.groupby(list(names), sort=True)
-  labels = [", ".join(f"{n}={v:g}" for n, v in zip(names, key if isinstance(key, tuple) else (key,)))
+  """E_r and coverage per sweep setting: mean ± std over seeds, one bar per setting.
+
+  ``names`` may include ``world`` and ``planner``; a NaN value (a weight the planner lacks) is a
+  setting of its own, shown as ``-``.
+  """
+  grouped = episodes.groupby(list(names), sort=True, dropna=False)
+  show = lambda v: v if isinstance(v, str) else ("-" if v != v else f"{v:g}")  # NaN: not swept there
+  labels = [", ".join(f"{n}={show(v)}" for n, v in zip(names, key if isinstance(key, tuple) else (key,)))
             for key in grouped.groups]
   fig, axes = plt.subplots(2, 1, figsize=(max(6, 0.45 * len(labels) + 2), 7), sharex=True)
   for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre E_r (nats/m)"),

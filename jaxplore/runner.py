@@ -82,7 +82,7 @@ def _compiled_advance(config: SimConfig, n_epochs: int, n_devices: int):
   if n_devices <= 1:
     return jax.jit(fn)
   from jax.sharding import Mesh, PartitionSpec as P
-  mesh = Mesh(np.array(jax.devices()[:n_devices]), ("robots",))
+  mesh = Mesh(np.array(jax.local_devices()[:n_devices]), ("robots",))
   sharded = jax.shard_map(fn, mesh=mesh, in_specs=(P(), P("robots"), P("robots")),
                           out_specs=(P("robots"), P(None, "robots")), check_vma=False)
   return jax.jit(sharded)
@@ -102,6 +102,30 @@ def parse_start(start) -> tuple[float, float, float] | None:
   return (values[0], values[1], values[2] if len(values) == 3 else 0.0)
 
 
+def build_params(planner: str, preset, res: float, params=None, planner_params=None) -> Params:
+  """The :class:`Params` of a run: preset, overrides, the planner's default weights and overrides.
+
+  Leaves may be scalars or arrays with one value per robot (a sweep). No validation of values.
+  """
+  weights = dict(get_planner(planner).defaults)
+  unknown = set(planner_params or {}) - set(weights)
+  if unknown:
+    raise ConfigError(f"planner {planner!r} has no parameter(s) {sorted(unknown)}; "
+                      f"it has: {', '.join(sorted(weights)) or 'none'}")
+  weights.update(planner_params or {})
+  return make_params(preset, res=res, planner=weights, **(params or {}))
+
+
+def robot_keys(seeds) -> jax.Array:
+  """One PRNG key per robot, ``PRNGKey(s)`` for seed ``s`` (the same start in every setting)."""
+  return jax.vmap(jax.random.PRNGKey)(jnp.asarray([int(s) for s in seeds], jnp.uint32))
+
+
+def default_chunk_epochs(config: SimConfig) -> int:
+  """Planning rounds per compiled call: about 500 steps, the granularity of progress and early stop."""
+  return max(1, min(config.n_epochs, 2000 // config.replan_every // 4 or 1))
+
+
 def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, preset="li2020",
             res=None, start=None, max_steps=None, replan_every=None, params=None,
             planner_params=None, pose_noise=False, path_capacity=None):
@@ -113,13 +137,7 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
     raise ConfigError(f"unknown preset {preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
   grid = world if isinstance(world, GridMap) else load_world(world, res=res)
   start_pose = parse_start(start)
-  weights = dict(spec.defaults)
-  unknown = set(planner_params or {}) - set(weights)
-  if unknown:
-    raise ConfigError(f"planner {planner!r} has no parameter(s) {sorted(unknown)}; "
-                      f"it has: {', '.join(sorted(weights)) or 'none'}")
-  weights.update(planner_params or {})
-  p = make_params(preset, res=grid.res, planner=weights, **(params or {}))
+  p = build_params(planner, preset, grid.res, params, planner_params)
   overrides = dict(planner=planner, pose_noise=bool(pose_noise))
   if replan_every is not None:
     overrides["replan_every"] = int(replan_every)
@@ -171,7 +189,8 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
   world_dev = sim.make_world(grid, float(np.max(np.asarray(p.r_robot))),
                              None if start_pose is None else start_pose[:2])
 
-  n_dev = len(jax.devices()) if devices is None else max(1, min(int(devices), len(jax.devices())))
+  n_local = len(jax.local_devices())
+  n_dev = n_local if devices is None else max(1, min(int(devices), n_local))
   n_dev = math.gcd(n_dev, robots) if robots % n_dev else n_dev
   params_b = sim.broadcast_params(p, robots)
   if robot_seeds is None:
@@ -180,10 +199,10 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
     robot_seeds = [int(s) for s in robot_seeds]
     if len(robot_seeds) != robots:
       raise ConfigError(f"robot_seeds has {len(robot_seeds)} seeds for {robots} robots")
-    keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray(robot_seeds, jnp.uint32))
+    keys = robot_keys(robot_seeds)
   starts = None if start_pose is None else jnp.tile(jnp.asarray(start_pose, jnp.float32), (robots, 1))
   if chunk_epochs is None:
-    chunk_epochs = max(1, min(config.n_epochs, 2000 // config.replan_every // 4 or 1))
+    chunk_epochs = default_chunk_epochs(config)
   advance = _compiled_advance(config, int(chunk_epochs), n_dev)
 
   t0 = time.perf_counter()
@@ -327,55 +346,7 @@ def summary_table(episodes: pd.DataFrame) -> str:
   return "\n".join(lines)
 
 
-def sweep(grid: dict, seeds: int = 8, world="building", planner="li2020", out=None, quiet=False,
-          **run_kwargs) -> RunResult:
-  """Every combination of ``grid`` values × ``seeds`` seeds as ONE batch (one compiled program).
-
-  Args:
-    grid: parameter name -> list of values; names are :class:`jaxplore.config.Params` fields or
-      the planner's weights (e.g. ``{"alpha": [1.0, 1.5], "k1": [0, 0.2], "k2": [0.6, 0.9]}``).
-    seeds: seeds per setting; seed ``s`` has the same start in every setting.
-    **run_kwargs: passed to :func:`run` (``params``/``planner_params`` give fixed values).
-  Returns:
-    The :class:`RunResult`; ``episodes`` has one column per swept parameter. With ``out``, also
-    writes ``sweep.png`` (E_r and coverage per setting, mean ± std over seeds).
-  """
-  import itertools
-  spec = get_planner(planner)
-  names = list(grid)
-  if not names:
-    raise ConfigError("sweep needs at least one parameter in the grid")
-  valid_names = set(dataclasses.asdict(Params()).keys()) - {"planner"}
-  for name in names:
-    if name not in valid_names and name not in spec.defaults:
-      raise ConfigError(f"cannot sweep {name!r}: not a simulator parameter nor a weight of planner "
-                        f"{planner!r} ({', '.join(sorted(spec.defaults)) or 'none'})")
-    if not len(grid[name]):
-      raise ConfigError(f"sweep grid for {name!r} is empty")
-  combos = list(itertools.product(*(list(grid[n]) for n in names)))
-  rows = [(combo, s) for combo in combos for s in range(int(seeds))]
-  params = dict(run_kwargs.pop("params", None) or {})
-  planner_params = dict(run_kwargs.pop("planner_params", None) or {})
-  for k, name in enumerate(names):
-    values = np.asarray([float(combo[k]) for combo, _ in rows], np.float32)
-    (planner_params if name in spec.defaults and name not in valid_names else params)[name] = values
-  result = run(world=world, planner=planner, robots=len(rows), params=params,
-               planner_params=planner_params, robot_seeds=[s for _, s in rows], quiet=True,
-               out=None, **run_kwargs)
-  for k, name in enumerate(names):
-    result.episodes.insert(3 + k, name, [float(combo[k]) for combo, _ in rows])
-  result.config["sweep"] = {"grid": {n: [float(v) for v in grid[n]] for n in names}, "seeds": int(seeds)}
-  if out is not None:
-    result.out = write_results(result, Path(out))
-    from jaxplore import plot
-    plot.sweep_figure(result.episodes, names, Path(out) / "sweep.png")
-  if not quiet:
-    print(sweep_table(result.episodes, names))
-  return result
-
-
-def sweep_table(episodes: pd.DataFrame, names) -> str:
-  """Mean ± std of the headline metrics per setting."""
-  table = metrics.summarise(episodes, names, ["E_r", "Std_E_r", "distance_m", "coverage", "time_s"])
-  cols = list(names) + [c for c in table.columns if c.endswith("_mean") or c.endswith("_std")]
-  return table[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}")
+def sweep(*args, **kwargs):
+  """A parameter sweep in chunks, resumable: see :func:`jaxplore.sweeps.sweep` (same arguments)."""
+  from jaxplore import sweeps
+  return sweeps.sweep(*args, **kwargs)
