@@ -1,4 +1,4 @@
-"""The ``jaxplore`` command: ``run``, ``maps``, ``plot``.
+"""The ``jaxplore`` command: ``run``, ``sweep``, ``maps``, ``plot``.
 
 A thin argparse layer over :func:`jaxplore.runner.run` and friends (STYLE.md practice 15). JAX is
 imported only after the arguments are parsed, so ``--devices`` can set how many host devices XLA
@@ -32,6 +32,56 @@ def _set_devices(n):
     os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
 
 
+def _sweep(args) -> int:
+  """``jaxplore sweep``: flags -> :func:`jaxplore.sweeps.sweep` (None = from --config or default)."""
+  from jaxplore.config import ConfigError
+  from jaxplore.maps import MapError
+  from jaxplore import sweeps
+  try:
+    devices = args.devices
+    if devices is None and args.config is not None:
+      devices = sweeps.load_config(args.config).get("devices")
+    _set_devices(devices)  # before JAX starts
+    grid = None
+    for item in args.grid or []:
+      if "=" not in item:
+        raise ConfigError(f"--grid takes NAME=V1,V2,..., got {item!r}")
+      name, values = item.split("=", 1)
+      try:
+        grid = dict(grid or {}, **{name.strip(): [float(v) for v in values.split(",") if v.strip()]})
+      except ValueError:
+        raise ConfigError(f"--grid {name}: {values!r} is not a list of numbers") from None
+    random = None
+    for item in args.random or []:
+      if "=" not in item:
+        raise ConfigError(f"--random takes NAME=LOW:HIGH[:log], got {item!r}")
+      name, spec = item.split("=", 1)
+      random = dict(random or {}, **{name.strip(): sweeps.parse_random_spec(spec)})
+    one = lambda names: None if names is None else (names[0] if len(names) == 1 else names)
+    result = sweeps.sweep(
+        grid=grid, seeds=args.seeds, world=one(args.world), planner=one(args.planner), out=args.out,
+        quiet=args.quiet, random=random, samples=args.samples, random_seed=args.random_seed,
+        chunk_size=args.chunk_size, resume=args.resume, config=args.config,
+        progress=not args.no_progress, devices=args.devices, distributed=args.distributed,
+        preset=args.preset, res=args.res, max_steps=args.max_steps, replan_every=args.replan_every,
+        params=_key_values(args.set, "--set") or None,
+        planner_params=_key_values(args.planner_set, "--planner-set") or None,
+        pose_noise=args.pose_noise)
+  except (ConfigError, MapError) as err:
+    print(f"jaxplore: error: {err}", file=sys.stderr)
+    return 2
+  except KeyboardInterrupt as err:
+    print(f"jaxplore: {err}", file=sys.stderr)
+    return 130
+  t = result.timing
+  print(f"{t['robot_episodes']} robot-episodes ({t['chunks_run']} of {t['chunks']} chunks run here, "
+        f"{t['chunks_skipped']} already done); compile {t['compile_s']:.1f} s ({t['compiles']} "
+        f"compile(s)), run {t['run_s']:.1f} s")
+  if result.out is not None:
+    print(f"results in {result.out}")
+  return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="jaxplore", description=__doc__.splitlines()[0])
   sub = parser.add_subparsers(dest="command", required=True)
@@ -54,21 +104,41 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
   run.add_argument("--no-progress", action="store_true")
 
-  sw = sub.add_parser("sweep", help="a parameter grid x seeds as one compiled batch")
-  sw.add_argument("--world", default="building")
-  sw.add_argument("--planner", default="li2020")
-  sw.add_argument("--grid", nargs="+", required=True, metavar="NAME=V1,V2,...",
+  sw = sub.add_parser(
+      "sweep", help="worlds x planners x parameter settings x seeds, in resumable chunks",
+      description="Every combination of --grid values (and --samples random points of the --random "
+      "ranges) x seeds, for every world and planner. Runs in chunks of equal shape (one compile per "
+      "world and planner); with --out every finished chunk is saved, and --resume DIR finishes an "
+      "interrupted sweep. Flags given here win over the --config file.")
+  sw.add_argument("--config", default=None, metavar="TOML", help="sweep settings from a TOML file")
+  sw.add_argument("--resume", default=None, metavar="DIR",
+                  help="finish the interrupted sweep in DIR (every setting comes from its plan)")
+  sw.add_argument("--world", nargs="+", default=None, metavar="WORLD",
+                  help="one or more worlds: names or map_server YAML paths (default: building)")
+  sw.add_argument("--planner", nargs="+", default=None, metavar="PLANNER",
+                  help="one or more planners (default: li2020)")
+  sw.add_argument("--grid", nargs="+", default=None, metavar="NAME=V1,V2,...",
                   help="values of each swept parameter, e.g. alpha=1.0,1.5 k1=0,0.2 k2=0.6,0.9")
-  sw.add_argument("--seeds", type=int, default=8)
-  sw.add_argument("--preset", default="li2020")
+  sw.add_argument("--random", nargs="+", default=None, metavar="NAME=LOW:HIGH[:log]",
+                  help="random search ranges (uniform, or log-uniform with :log)")
+  sw.add_argument("--samples", type=int, default=None, help="random points drawn from the --random ranges")
+  sw.add_argument("--random-seed", type=int, default=None, help="seed of the random points (default 0)")
+  sw.add_argument("--seeds", type=int, default=None, help="seeds per setting (default 8)")
+  sw.add_argument("--preset", default=None, help="sensor/robot preset (default li2020)")
   sw.add_argument("--res", type=float, default=None)
   sw.add_argument("--max-steps", type=int, default=None)
   sw.add_argument("--replan-every", type=int, default=None)
   sw.add_argument("--set", action="append", metavar="NAME=VALUE")
   sw.add_argument("--planner-set", action="append", metavar="NAME=VALUE")
-  sw.add_argument("--out", default=None)
-  sw.add_argument("--devices", type=int, default=None)
+  sw.add_argument("--pose-noise", action="store_true", default=None)
+  sw.add_argument("--chunk-size", type=int, default=None,
+                  help="robot-episodes per chunk (default: at most 256, as many as fit in memory)")
+  sw.add_argument("--out", default=None, help="results folder (plan, chunks, tables, figures)")
+  sw.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
+  sw.add_argument("--distributed", action="store_true",
+                  help="call jax.distributed.initialize() and split the chunks over the processes")
   sw.add_argument("--no-progress", action="store_true")
+  sw.add_argument("--quiet", action="store_true", help="no per-setting table")
 
   maps = sub.add_parser("maps", help="list the built-in worlds, or render one to PNG")
   maps.add_argument("--render", default=None, metavar="WORLD", help="world name or YAML path")
@@ -121,35 +191,7 @@ def main(argv=None) -> int:
       print(f"results in {result.out}")
     return 0
   if args.command == "sweep":
-    _set_devices(args.devices)
-    from jaxplore.config import ConfigError
-    from jaxplore.maps import MapError
-    from jaxplore.runner import sweep
-    grid = {}
-    for item in args.grid:
-      if "=" not in item:
-        print(f"jaxplore: error: --grid takes NAME=V1,V2,..., got {item!r}", file=sys.stderr)
-        return 2
-      name, values = item.split("=", 1)
-      try:
-        grid[name.strip()] = [float(v) for v in values.split(",") if v.strip()]
-      except ValueError:
-        print(f"jaxplore: error: --grid {name}: {values!r} is not a list of numbers", file=sys.stderr)
-        return 2
-    try:
-      result = sweep(grid, seeds=args.seeds, world=args.world, planner=args.planner, out=args.out,
-                     preset=args.preset, res=args.res, max_steps=args.max_steps,
-                     replan_every=args.replan_every, params=_key_values(args.set, "--set"),
-                     planner_params=_key_values(args.planner_set, "--planner-set"),
-                     progress=not args.no_progress, devices=args.devices)
-    except (ConfigError, MapError) as err:
-      print(f"jaxplore: error: {err}", file=sys.stderr)
-      return 2
-    t = result.timing
-    print(f"{len(result.episodes)} robot-episodes; compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s")
-    if result.out is not None:
-      print(f"results in {result.out}")
-    return 0
+    return _sweep(args)
   if args.command == "maps":
     from jaxplore.maps import MapError, load_world, render_png, world_table
     if args.render:

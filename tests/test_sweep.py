@@ -1,0 +1,339 @@
+"""``jaxplore sweep``: chunks, one compile, resume after an interruption or ``kill -9``, sharding,
+TOML files, random search, several planners, the memory guard and clear refusals.
+
+Every compute here is a 40 x 40 world (``open`` at 0.5 m) for 30 steps; the settings of
+``SETTINGS`` are shared so that in-process sweeps reuse one compiled program.
+"""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import jaxplore
+from jaxplore import cli, runner, sweeps
+from jaxplore.config import ConfigError
+
+REPO = Path(jaxplore.__file__).resolve().parents[1]
+SETTINGS = dict(world="open", res=0.5, planner="li2020", max_steps=30, replan_every=5,
+                params={"r_max": 2.0}, progress=False, quiet=True, devices=1)
+GRID = {"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}
+CLI_ARGS = ["sweep", "--world", "open", "--res", "0.5", "--planner", "li2020", "--max-steps", "30",
+            "--replan-every", "5", "--set", "r_max=2", "--grid", "alpha=1,2", "k1=0,0.3",
+            "--seeds", "2", "--chunk-size", "3", "--devices", "1", "--no-progress", "--quiet"]
+
+
+def _subprocess_env(**extra):
+  env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+  env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+  env.update(extra)
+  return env
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+  """The uninterrupted sweep: 8 rows in chunks of 3 (the last padded), compiles counted by a
+  JAX monitoring listener of the test's own."""
+  import jax.monitoring
+  from jax._src import dispatch
+  compiled = []
+
+  def listener(event, duration, **kwargs):
+    if event == dispatch.BACKEND_COMPILE_EVENT:
+      compiled.append(str(kwargs.get("fun_name")))
+
+  jax.monitoring.register_event_duration_secs_listener(listener)
+  out = tmp_path_factory.mktemp("sweep") / "reference"
+  try:
+    result = jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  finally:
+    jax.monitoring.unregister_event_duration_listener(listener)
+  return result, out, compiled
+
+
+def _tables(out):
+  return pd.read_parquet(out / "episodes.parquet"), pd.read_parquet(out / "curves.parquet")
+
+
+def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference):
+  result, out, compiled = reference
+  advance = [name for name in compiled if "advance" in name]
+  assert len(advance) == 1, compiled  # three chunks, one compile of the engine
+  assert result.timing["compiles"] == 1 and result.timing["chunks"] == 3
+  plan = json.loads((out / sweeps.PLAN_FILE).read_text())
+  assert plan["groups"][0]["chunk_size"] == 3 and plan["n_chunks"] == 3
+  assert [r["row"] for r in plan["groups"][0]["rows"]] == list(range(8))
+  for k in range(3):
+    assert (out / "chunks" / f"chunk_{k:05d}.parquet").exists()
+    assert (out / "chunks" / f"chunk_{k:05d}.curves.parquet").exists()
+  assert not list((out / "chunks").glob("*.tmp"))
+  for name in ("config.json", "timing.json", "episodes.parquet", "curves.parquet", "sweep.png",
+               "map.png", "coverage_time.png"):
+    assert (out / name).exists(), name
+  episodes, curves = _tables(out)
+  pd.testing.assert_frame_equal(episodes, result.episodes)
+  # one row per robot-episode (the padding of the last chunk dropped), every swept value a column
+  assert episodes.robot.tolist() == list(range(8))
+  assert sorted(set(zip(episodes.alpha, episodes.k1, episodes.seed))) == sorted(
+      (a, k, s) for a in (1.0, 2.0) for k in (0.0, 0.3) for s in (0, 1))
+  assert set(curves.robot) == set(range(8))
+  assert (episodes.world == "open").all() and (episodes.planner == "li2020").all()
+  # common random numbers: a seed starts at the same pose in every setting
+  first = curves[curves.step == 1].set_index("robot")
+  for s in (0, 1):
+    rows = episodes.robot[episodes.seed == s]
+    assert first.loc[rows, "x"].nunique() == 1 and first.loc[rows, "y"].nunique() == 1
+  # the settings differ (the sweep is not running one setting eight times)
+  assert episodes.coverage.nunique() > 2
+  config = json.loads((out / "config.json").read_text())
+  assert config["sweep"]["grid"] == {"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}
+  assert config["groups"][0]["sim_config"]["max_steps"] == 30
+  # jaxplore plot DIR redraws every figure of a sweep folder, sweep.png included
+  (out / "sweep.png").unlink()
+  assert cli.main(["plot", str(out)]) == 0
+  assert (out / "sweep.png").exists()
+
+
+def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkeypatch):
+  _, ref_out, _ = reference
+  out = tmp_path / "cut"
+  real = sweeps._run_chunk
+  calls = []
+
+  def interrupt_second_chunk(*args, **kwargs):
+    calls.append(1)
+    if len(calls) == 2:
+      raise KeyboardInterrupt
+    return real(*args, **kwargs)
+
+  monkeypatch.setattr(sweeps, "_run_chunk", interrupt_second_chunk)
+  with pytest.raises(KeyboardInterrupt, match="--resume"):
+    jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  monkeypatch.setattr(sweeps, "_run_chunk", real)
+  assert (out / "chunks" / "chunk_00000.parquet").exists()
+  assert not (out / "chunks" / "chunk_00001.parquet").exists()
+  assert not (out / "episodes.parquet").exists()
+  (out / "chunks" / "chunk_00001.parquet.tmp").write_bytes(b"torn write")  # as if killed mid-write
+
+  resumed = jaxplore.sweep(resume=out, progress=False, quiet=True, devices=1)
+  assert resumed.timing["chunks_skipped"] == 1 and resumed.timing["chunks_run"] == 2
+  assert not list((out / "chunks").glob("*.tmp"))
+  for mine, theirs in zip(_tables(out), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs)
+
+  # the same command again on the finished folder computes nothing and gives the same table
+  again = jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  assert again.timing["chunks_run"] == 0
+  pd.testing.assert_frame_equal(again.episodes, _tables(ref_out)[0])
+
+
+KILLABLE = textwrap.dedent("""
+    # jaxplore sweep, with the second chunk held back so that SIGKILL lands while it is pending
+    import sys, time
+    from jaxplore import cli, sweeps
+    real, calls = sweeps._run_chunk, []
+    def held(*args, **kwargs):
+      calls.append(1)
+      if len(calls) == 2:
+        time.sleep(600)
+      return real(*args, **kwargs)
+    sweeps._run_chunk = held
+    sys.exit(cli.main(sys.argv[1:]))
+""")
+
+
+def test_kill_9_then_resume_gives_the_uninterrupted_table(reference, tmp_path):
+  _, ref_out, _ = reference
+  out = tmp_path / "killed"
+  proc = subprocess.Popen([sys.executable, "-c", KILLABLE, *CLI_ARGS, "--out", str(out)],
+                          cwd=REPO, env=_subprocess_env(), stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT)
+  first_chunk = out / "chunks" / "chunk_00000.parquet"
+  deadline = time.monotonic() + 240
+  while not first_chunk.exists():
+    if proc.poll() is not None or time.monotonic() > deadline:
+      proc.kill()
+      pytest.fail(f"sweep ended or hung before its first chunk:\n{proc.communicate()[0].decode()}")
+    time.sleep(0.05)
+  os.kill(proc.pid, signal.SIGKILL)
+  proc.wait(timeout=30)
+  assert proc.returncode == -signal.SIGKILL
+  assert not (out / "chunks" / "chunk_00001.parquet").exists()
+  assert not (out / "episodes.parquet").exists()
+
+  assert cli.main(["sweep", "--resume", str(out), "--devices", "1", "--no-progress", "--quiet"]) == 0
+  for mine, theirs in zip(_tables(out), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs)
+
+
+SHARDED = textwrap.dedent("""
+    import sys, jax, jaxplore
+    assert len(jax.devices()) == 2, jax.devices()
+    result = jaxplore.sweep({"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}, seeds=2, world="open", res=0.5,
+                            planner="li2020", max_steps=30, replan_every=5, params={"r_max": 2.0},
+                            progress=False, quiet=True, devices=2, chunk_size=4)
+    assert result.timing["compiles"] == 1 and result.timing["sharded_over"] == 2, result.timing
+    result.episodes.to_parquet(sys.argv[1] + "/episodes.parquet")
+    result.curves.to_parquet(sys.argv[1] + "/curves.parquet")
+""")
+
+
+def test_sharded_sweep_equals_unsharded_bit_for_bit(reference, tmp_path):
+  """Two host devices, chunks of 4 sharded 2 + 2, against one device and chunks of 3: the same
+  rows land in different chunks, positions and devices, and every number is identical."""
+  _, ref_out, _ = reference
+  done = subprocess.run([sys.executable, "-c", SHARDED, str(tmp_path)], cwd=REPO, capture_output=True,
+                        env=_subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+                        timeout=300)
+  assert done.returncode == 0, done.stderr.decode()[-3000:]
+  for mine, theirs in zip(_tables(tmp_path), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs, check_exact=True)
+
+
+def test_toml_random_search_and_several_planners(reference, tmp_path):
+  toml = tmp_path / "sweep.toml"
+  toml.write_text(textwrap.dedent(f"""
+      world = "open"
+      planners = ["li2020", "nearest_frontier"]
+      seeds = [0, 1]
+      res = 0.5
+      max_steps = 30
+      replan_every = 5
+      chunk_size = 3
+      out = "{tmp_path / 'toml'}"
+
+      [set]
+      r_max = 2.0
+
+      [planner_set]
+      k2 = 0.8
+
+      [random]
+      samples = 2
+      seed = 7
+      alpha = {{ low = 1.0, high = 2.0 }}
+      k1 = {{ low = 0.01, high = 0.3, log = true }}
+  """))
+  result = jaxplore.sweep(config=toml, progress=False, quiet=True, devices=1)
+  episodes = result.episodes
+  li, nf = episodes[episodes.planner == "li2020"], episodes[episodes.planner == "nearest_frontier"]
+  assert len(li) == 2 * 2 and len(nf) == 2 * 2  # 2 random points x 2 seeds for each planner
+  assert li.alpha.between(1.0, 2.0).all() and li.k1.between(0.01, 0.3).all()
+  assert li.alpha.nunique() == 2 and li.k1.nunique() == 2
+  assert nf.k1.isna().all() and sorted(nf.alpha.unique()) == sorted(li.alpha.unique())
+  assert episodes.robot.tolist() == list(range(8))
+  assert result.timing["compiles"] <= 2  # one program per planner (li2020's may be cached)
+  config = json.loads((tmp_path / "toml" / "config.json").read_text())
+  assert config["groups"][0]["fixed_planner_params"]["k2"] == pytest.approx(0.8)
+  assert (tmp_path / "toml" / "sweep.png").exists()
+  # the points come from the seed: the same file plans the same points
+  again = sweeps.make_spec(None, sweeps.load_config(toml)["random"], 2, 7, [0], "open", "li2020",
+                           {}, None, {})
+  drawn = sweeps.random_samples(again["random"], 2, 7)
+  assert sorted(li.alpha.unique()) == sorted(a for a, _ in drawn)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("gird = 1", "unknown key 'gird'"),
+    ("samples = 4", "unknown key 'samples'.*\\[random\\]"),
+    ("[grid]\nalpha = []", "sweep grid for 'alpha' is empty"),
+    ("[grid]\nalpha = ['a']", "must be a number"),
+    ("[random]\nalpha = {low = 1, high = 2}", "samples"),
+    ("[random]\nsamples = 2\nalpha = {low = 1, hi = 2}", "unknown key.*'hi'"),
+    ("[random]\nsamples = 2\nk1 = {low = 0, high = 1, log = true}", "log range needs low > 0"),
+    ("seeds = 'many'", "seeds must be"),
+    ("world = 'open'\nworlds = ['lab']", "either world or worlds"),
+    ("chunk_size = 0", "chunk_size must be a positive integer"),
+    ("max_steps = = 3", "not valid TOML"),
+])
+def test_bad_toml_is_refused_naming_the_key(tmp_path, text, match):
+  path = tmp_path / "bad.toml"
+  path.write_text(text)
+  with pytest.raises(ConfigError, match=match):
+    jaxplore.sweep(config=path, progress=False)
+
+
+def test_cli_errors_are_one_clear_line(tmp_path, capsys):
+  bad = tmp_path / "bad.toml"
+  bad.write_text("gird = 1\n")
+  assert cli.main(["sweep", "--config", str(bad), "--devices", "1", "--no-progress"]) == 2
+  err = capsys.readouterr().err
+  assert err.startswith("jaxplore: error:") and "gird" in err
+  assert cli.main(["sweep", "--resume", str(tmp_path / "nowhere"), "--devices", "1"]) == 2
+  assert "cannot resume" in capsys.readouterr().err
+  assert cli.main(["sweep", "--resume", str(tmp_path), "--grid", "alpha=1", "--devices", "1"]) == 2
+  assert "do not give grid" in capsys.readouterr().err
+  assert cli.main(["sweep", "--random", "alpha=1", "--samples", "2", "--devices", "1"]) == 2
+  assert "NAME=LOW:HIGH" in capsys.readouterr().err
+
+
+def test_resume_refuses_a_missing_or_corrupt_plan(tmp_path):
+  with pytest.raises(ConfigError, match="holds no sweep_plan.json"):
+    jaxplore.sweep(resume=tmp_path, progress=False)
+  (tmp_path / sweeps.PLAN_FILE).write_text("{not json")
+  with pytest.raises(ConfigError, match="corrupt"):
+    jaxplore.sweep(resume=tmp_path, progress=False)
+  (tmp_path / sweeps.PLAN_FILE).write_text(json.dumps({"format": sweeps.PLAN_FORMAT, "version": 1}))
+  with pytest.raises(ConfigError, match="corrupt"):
+    jaxplore.sweep(resume=tmp_path, progress=False)
+
+
+def test_a_folder_holding_another_sweep_or_other_files_is_refused(reference, tmp_path):
+  _, ref_out, _ = reference
+  other = tmp_path / "other"
+  other.mkdir()
+  shutil.copy(ref_out / sweeps.PLAN_FILE, other / sweeps.PLAN_FILE)
+  with pytest.raises(ConfigError, match=r"different sweep.*grid.*--resume"):
+    jaxplore.sweep({"alpha": [1.0, 3.0]}, seeds=2, out=other, **SETTINGS)
+  with pytest.raises(ConfigError, match="different sweep.*seeds"):
+    jaxplore.sweep(GRID, seeds=3, out=other, **SETTINGS)
+  busy = tmp_path / "busy"
+  busy.mkdir()
+  (busy / "notes.txt").write_text("mine")
+  with pytest.raises(ConfigError, match="not empty and holds no sweep plan"):
+    jaxplore.sweep(GRID, seeds=2, out=busy, **SETTINGS)
+
+
+def test_memory_guard_shrinks_a_chunk_or_refuses_with_the_numbers(monkeypatch, capsys):
+  _, config, _, _ = runner.prepare("open", "li2020", 8, res=0.5, max_steps=30, replan_every=5,
+                                   params={"r_max": 2.0})
+  one, eight = runner.estimate_bytes(config, 1), runner.estimate_bytes(config, 8)
+  # room for a chunk of two robots but not eight
+  room = int(runner.estimate_bytes(config, 2) / sweeps.MEMORY_FRACTION) + 1
+  monkeypatch.setattr(runner, "available_bytes", lambda: room)
+  assert runner.estimate_bytes(config, 3) > sweeps.MEMORY_FRACTION * room
+  assert sweeps.fit_chunk(config, 8) == 2
+  err = capsys.readouterr().err
+  assert "chunk of 8 robots" in err and "40x40" in err and f"({eight} bytes)" in err
+  assert "running chunks of 2 robots instead" in err
+  with pytest.raises(ConfigError, match="the plan's chunks of 8"):
+    sweeps.fit_chunk(config, 8, fixed=True)
+  # not even one robot: refused before any compute, naming bytes, grid and robots
+  monkeypatch.setattr(runner, "available_bytes", lambda: one)
+  with pytest.raises(ConfigError, match=rf"one robot on a 40x40 grid .*\({one} bytes\).*available"):
+    jaxplore.sweep(GRID, seeds=2, **SETTINGS)
+  with pytest.raises(ConfigError, match="one robot"):
+    jaxplore.sweep(GRID, seeds=2, chunk_size=10_000_000, **SETTINGS)
+
+
+def test_bad_sweep_arguments_are_refused_before_compute():
+  with pytest.raises(ConfigError, match="cannot sweep 'gamma'"):
+    jaxplore.sweep({"gamma": [1.0]}, seeds=1, **SETTINGS)
+  with pytest.raises(ConfigError, match="both in the grid and in the random search"):
+    jaxplore.sweep({"alpha": [1.0]}, random={"alpha": (1.0, 2.0)}, samples=2, **SETTINGS)
+  with pytest.raises(ConfigError, match="samples is given"):
+    jaxplore.sweep({"alpha": [1.0]}, samples=2, **SETTINGS)
+  with pytest.raises(ConfigError, match="unknown setting.*'robots'"):
+    jaxplore.sweep({"alpha": [1.0]}, robots=3, **SETTINGS)
+  with pytest.raises(ConfigError, match="chunk_size must be a positive integer"):
+    jaxplore.sweep({"alpha": [1.0]}, chunk_size=0, **SETTINGS)
+  with pytest.raises(ConfigError, match="k1 < k2"):
+    jaxplore.sweep({"k1": [0.2, 0.95]}, seeds=1, **SETTINGS)
