@@ -5,9 +5,10 @@ chosen robots from ``config.json`` (same static config, same parameter values, s
 run is reproducible) and checks that the replayed trajectory equals the ``x``, ``y`` columns of
 ``curves.parquet`` before drawing anything, so the animation shows the run that was recorded.
 
-Frames are taken between planning rounds (every ``replan_every`` motion steps at the finest); each
+Frames are taken at planning rounds (every ``replan_every`` motion steps at the finest); each
 shows, per robot, its log-odds belief over the truth, its trajectory so far (at step resolution),
-the rest of the path it is following and its goal.
+and the path and goal its planner chooses at that moment (read from the state after the next
+round: the engine installs the plan there, so the path drawn is the one the robot then follows).
 """
 
 from __future__ import annotations
@@ -37,9 +38,10 @@ class Replay:
     occupied, res, origin: the truth map.
     x, y: f64[T, R] replayed positions after every step (T = steps replayed).
     steps_recorded: int[R] steps of each robot in ``curves.parquet`` (its last is its done step).
-    frames: snapshots, each a dict with ``step`` (int), ``logodds`` f16[R, H, W],
-      ``waypoints`` i32[R, L, 2], ``path_len``, ``path_idx`` i32[R], ``goal`` i32[R, 2],
-      ``pose`` f32[R, 3], ``time``, ``coverage`` f32[R], ``done`` bool[R], ``reason`` i32[R].
+    frames: snapshots at planning rounds, each a dict with ``step`` (int), ``logodds``
+      f16[R, H, W], ``pose`` f32[R, 3], ``time``, ``coverage`` f32[R], ``done`` bool[R],
+      ``reason`` i32[R], and the plan chosen at that round: ``waypoints`` i32[R, L, 2],
+      ``path_len`` i32[R], ``goal`` i32[R, 2], ``planned`` bool[R] (False: done, or no candidate).
     max_deviation_m: largest |replayed − recorded| position over the recorded steps.
   """
 
@@ -120,7 +122,7 @@ def _select(value, robots, n_robots, name):
 
 def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, progress: bool = True,
                check: bool = True) -> Replay:
-  """Re-runs the chosen robots of a saved run and snapshots them between planning rounds.
+  """Re-runs the chosen robots of a saved run and snapshots them at planning rounds.
 
   Args:
     run_dir: a results folder of ``jaxplore run --out`` (or ``jaxplore sweep --out``).
@@ -180,15 +182,22 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
     every_epochs = max(1, -(-int(every) // per_epoch))
 
   def snapshot(state, step):
-    frame = {name: np.asarray(getattr(state, name)) for name in
-             ("logodds", "waypoints", "path_len", "path_idx", "goal", "pose", "time", "done", "reason")}
-    frame["logodds"] = frame["logodds"].astype(np.float16)
+    frame = {name: np.asarray(getattr(state, name)) for name in ("pose", "time", "done", "reason")}
+    frame["logodds"] = np.asarray(state.logodds).astype(np.float16)
     frame["coverage"] = np.asarray(state.covered) / float(world.n_reachable)
     frame["step"] = step
     return frame
 
+  def with_plan(frame, after):
+    """The plan of the round at ``frame``: ``plan`` runs first in a round, so the state after the
+    round holds it (a waypoint found blocked on the way shortens ``path_len``)."""
+    frame.update(waypoints=np.asarray(after.waypoints), path_len=np.asarray(after.path_len),
+                 goal=np.asarray(after.goal))
+    frame["planned"] = ~frame["done"] & (frame["path_len"] > 0)
+    return frame
+
   state = sim.reset_batch(sim_config, world, params, keys, starts)
-  frames = [snapshot(state, 0)]
+  frames, pending = [], snapshot(state, 0)
   xs, ys = [], []
   bar = None
   if progress:
@@ -199,10 +208,16 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
       state, rec = sim.advance(sim_config, world, params, state, n_epochs=1)
       xs.append(np.asarray(rec.x, np.float64))
       ys.append(np.asarray(rec.y, np.float64))
+      if pending is not None:
+        frames.append(with_plan(pending, state))
+        pending = None
       if k % every_epochs == 0 or k == n_epochs:
-        frames.append(snapshot(state, k * per_epoch))
+        pending = snapshot(state, k * per_epoch)
       if bar is not None:
         bar.update(per_epoch)
+    if not pending["done"].all():  # an interrupted run: one more round shows the last plan
+      state, _ = sim.advance(sim_config, world, params, state, n_epochs=1)
+    frames.append(with_plan(pending, state))
   finally:
     if bar is not None:
       bar.close()
@@ -260,7 +275,7 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
     image = ax.imshow(plot.belief_rgb(replay.occupied, replay.frames[0]["logodds"][j]), origin="lower",
                       extent=extent, interpolation="nearest")
     trail, = ax.plot([], [], lw=1.2, color=colour, label="trajectory")
-    path, = ax.plot([], [], lw=1.0, ls="--", color="tab:red", label="current path")
+    path, = ax.plot([], [], lw=1.0, ls="--", color="tab:red", label="planned path")
     goal, = ax.plot([], [], "x", ms=7, mew=2, color="tab:red", label="goal")
     robot, = ax.plot([], [], "o", ms=5, color=colour, mec="k")
     ax.set_xlim(extent[0], extent[1])
@@ -284,17 +299,13 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
       trail.set_data(replay.x[:shown, j], replay.y[:shown, j])
       pose = frame["pose"][j]
       robot.set_data([pose[0]], [pose[1]])
-      idx, length = int(frame["path_idx"][j]), int(frame["path_len"][j])
-      if idx < length and not frame["done"][j]:
-        px, py = _cells_to_xy(frame["waypoints"][j][idx:length], replay.res, replay.origin)
+      if frame["planned"][j]:
+        px, py = _cells_to_xy(frame["waypoints"][j][: int(frame["path_len"][j])], replay.res, replay.origin)
         path.set_data(np.concatenate([[pose[0]], px]), np.concatenate([[pose[1]], py]))
-      else:
-        path.set_data([], [])
-      g = frame["goal"][j]
-      if g[0] >= 0 and not frame["done"][j]:
-        gx, gy = _cells_to_xy(g, replay.res, replay.origin)
+        gx, gy = _cells_to_xy(frame["goal"][j], replay.res, replay.origin)
         goal.set_data([gx], [gy])
       else:
+        path.set_data([], [])
         goal.set_data([], [])
       status = sim.REASONS[int(frame["reason"][j])] if frame["done"][j] else "exploring"
       ax.set_title(f"robot {r}: {float(frame['time'][j]):.0f} s, coverage "

@@ -43,6 +43,18 @@ def test_replay_reproduces_the_recorded_trajectory(run_dir):
   assert [f["step"] for f in replay.frames] == list(range(0, 41, 5))
   first, last = replay.frames[0], replay.frames[-1]
   assert np.count_nonzero(last["logodds"]) > np.count_nonzero(first["logodds"])  # the map grew
+  # The path drawn at a frame is the plan made there: it starts at the robot's cell of that moment.
+  planned = 0
+  for frame in replay.frames:
+    for j in range(2):
+      if frame["planned"][j]:
+        planned += 1
+        x, y = frame["pose"][j][:2]
+        cell = (int((y - replay.origin[1]) // replay.res), int((x - replay.origin[0]) // replay.res))
+        assert tuple(frame["waypoints"][j][0]) == cell
+        assert 1 <= frame["path_len"][j] <= frame["waypoints"].shape[1]
+  assert planned >= len(replay.frames)  # most frames show a plan for both robots
+  assert not last["planned"].any()  # both robots timed out: nothing left to plan
 
 
 def test_animate_writes_a_gif_with_frames(run_dir, tmp_path):
