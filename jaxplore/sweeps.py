@@ -4,7 +4,8 @@ A sweep is resolved into a *plan* before any compute: every row (one robot-episo
 planner, the values of the swept parameters, a seed), grouped by (world, planner) because those
 fix the shapes and the compiled program. Each group runs as batches of ``chunk_size`` rows: the
 same shapes for every chunk (the last one is padded by repeating its last row, and the padding is
-dropped), so one group compiles once. With ``out``, the plan is written first
+dropped), so one group compiles once. A parameter that fixes a shape exactly (``r_e``, the
+radius of ``li2020``'s gain kernel) splits a group by its values. With ``out``, the plan is written first
 (``sweep_plan.json``) and every finished chunk atomically (write, fsync, rename) to
 ``chunks/chunk_NNNNN.parquet`` (+ ``.curves.parquet``); ``sweep(resume=DIR)`` (``jaxplore sweep
 --resume DIR``) reads the plan, skips finished chunks, computes the rest and assembles the final
@@ -51,6 +52,9 @@ PLAN_VERSION = 1
 MAX_AUTO_CHUNK = 256
 MEMORY_FRACTION = 0.8
 DEFAULTS = dict(world="building", planner="li2020", seeds=8, preset="li2020")
+# Parameters that fix a static shape exactly (not just a bound): r_e sets the radius of li2020's
+# gain kernel (SimConfig.gain_radius_cells). Rows with different values run as separate groups.
+SHAPE_PARAMS = ("r_e",)
 RUN_KEYS = ("preset", "res", "start", "max_steps", "replan_every", "params", "planner_params",
             "pose_noise", "path_capacity", "chunk_epochs", "rate_interval")
 
@@ -485,19 +489,25 @@ def _group_settings(spec: dict, planner: str, samples_drawn) -> tuple[list[str],
 
 
 def _build_groups(spec: dict) -> list[dict]:
-  """(world, planner) groups with their rows; rows are numbered across the whole sweep."""
+  """Groups of rows that share a compiled program: one per world and planner, split further by
+  the values of ``SHAPE_PARAMS``. Rows are numbered across the whole sweep."""
   drawn = (random_samples(spec["random"], spec["samples"], spec["random_seed"])
            if spec["random"] else [()])
   groups, row = [], 0
   for w, world in enumerate(spec["worlds"]):
     for planner in spec["planners"]:
       names, settings = _group_settings(spec, planner, drawn)
-      rows = []
+      shape_at = [k for k, n in enumerate(names) if n in SHAPE_PARAMS]
+      parts = {}  # shape values -> settings, in order of first appearance
       for values in settings:
-        for seed in spec["seeds"]:
-          rows.append({"row": row, "seed": seed, "values": list(values)})
-          row += 1
-      groups.append({"world": w, "planner": planner, "names": names, "rows": rows})
+        parts.setdefault(tuple(values[k] for k in shape_at), []).append(values)
+      for part in parts.values():
+        rows = []
+        for values in part:
+          for seed in spec["seeds"]:
+            rows.append({"row": row, "seed": seed, "values": list(values)})
+            row += 1
+        groups.append({"world": w, "planner": planner, "names": names, "rows": rows})
   return groups
 
 

@@ -337,3 +337,20 @@ def test_bad_sweep_arguments_are_refused_before_compute():
     jaxplore.sweep({"alpha": [1.0]}, chunk_size=0, **SETTINGS)
   with pytest.raises(ConfigError, match="k1 < k2"):
     jaxplore.sweep({"k1": [0.2, 0.95]}, seeds=1, **SETTINGS)
+
+
+def test_r_e_fixes_a_shape_so_each_value_is_its_own_group():
+  """li2020 refuses a batch mixing r_e values (its gain kernel's shape); the plan splits them."""
+  spec = sweeps.make_spec({"r_e": [0.5, 1.0], "alpha": [1.0, 2.0]}, None, None, 0, [0, 1], "open",
+                          ["li2020", "nearest_frontier"], {"res": 0.5, "max_steps": 30}, None, {})
+  groups = sweeps._build_groups(spec)
+  assert [(g["planner"], len(g["rows"])) for g in groups] == [("li2020", 4), ("li2020", 4),
+                                                               ("nearest_frontier", 4),
+                                                               ("nearest_frontier", 4)]
+  assert [r["row"] for g in groups for r in g["rows"]] == list(range(16))
+  for g in groups:
+    assert len({r["values"][0] for r in g["rows"]}) == 1  # one r_e per group
+    sweeps._resolve_group(spec, g, None, {})  # validates: each group is a legal batch
+  mixed = dict(groups[0], rows=groups[0]["rows"] + groups[1]["rows"])
+  with pytest.raises(ConfigError, match="r_e"):
+    sweeps._resolve_group(spec, mixed, None, {})
