@@ -1,8 +1,10 @@
 """jaxplore: a JAX-vectorised, batched simulator for autonomous exploration and active SLAM.
 
 ``jaxplore.run(...)`` runs a batch of robots on a world and returns the tables (see
-:func:`jaxplore.runner.run`); ``jaxplore.sweep(...)`` runs a parameter grid as one batch. Submodules: ``maps``, ``sensor``, ``mapping``, ``motion``, ``graph``,
-``planners``, ``sim``, ``metrics``, ``plot``, ``cli``.
+:func:`jaxplore.runner.run`); ``jaxplore.sweep(...)`` runs worlds × planners × parameter settings
+× seeds in resumable chunks (see :func:`jaxplore.sweeps.sweep`). Submodules: ``maps``,
+``sensor``, ``mapping``, ``motion``, ``graph``, ``planners``, ``sim``, ``metrics``, ``plot``,
+``sweeps``, ``cli``.
 
 Importing jaxplore does not import JAX, so the command line can set ``XLA_FLAGS`` (host device
 count) first; the heavy modules load on first use.
@@ -18,7 +20,10 @@ def __getattr__(name):
   if name == "RunResult":
     from jaxplore.runner import RunResult
     return RunResult
+  if name == "SweepResult":
+    from jaxplore.sweeps import SweepResult
+    return SweepResult
   raise AttributeError(f"module 'jaxplore' has no attribute {name!r}")
 
 
-__all__ = ["run", "sweep", "RunResult", "__version__"]
+__all__ = ["run", "sweep", "RunResult", "SweepResult", "__version__"]
