@@ -852,7 +852,9 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
   n_dev = n_local if devices is None else max(1, min(int(devices), n_local))
   grids: dict = {}
 
-  plan = None
+  # Process 0 checks the folder and writes the plan; the others (several hosts) read it after a
+  # barrier, so that every process runs the same chunks even if their memory differs.
+  plan, groups = None, None
   if resume is not None:
     plan = _read_plan(out)
   else:
@@ -860,50 +862,69 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
                      DEFAULTS["seeds"] if seeds is None else seeds,
                      DEFAULTS["world"] if world is None else world,
                      DEFAULTS["planner"] if planner is None else planner, run_kwargs, out, grids)
-    if out is not None and (out / PLAN_FILE).exists():
-      try:
-        existing = json.loads((out / PLAN_FILE).read_text())
-        same = existing.get("spec") == spec
-      except (ValueError, AttributeError):
-        raise ConfigError(f"{out} holds an unreadable {PLAN_FILE}; choose another --out") from None
-      if not same:
-        raise ConfigError(f"{out} already holds a different sweep ({_first_difference(existing.get('spec'), spec)}); "
-                          f"finish it with `jaxplore sweep --resume {out}` or choose another --out")
+    if process == 0:
+      plan = _existing_plan(out, spec, quiet)
+      if plan is None:
+        plan, groups = _new_plan(spec, out, grids, chunk_size, n_dev)
+        if out is not None:
+          out.mkdir(parents=True, exist_ok=True)
+          for path, gridmap in grids.items():
+            _save_world(gridmap, out / path)
+          _write_json(out / PLAN_FILE, plan)
+    _barrier("jaxplore-sweep-plan", n_processes)
+    if process != 0:
       plan = _read_plan(out)
-      if not quiet:
-        print(f"jaxplore: {out} holds this same sweep: finished chunks are kept", file=sys.stderr)
-    elif out is not None and out.exists() and any(not p.name.endswith(".tmp") for p in out.iterdir()):
-      raise ConfigError(f"{out} is not empty and holds no sweep plan; choose another --out "
-                        f"(or --resume DIR for an interrupted sweep)")
-  if plan is not None:
+      if plan["spec"] != spec:
+        raise ConfigError(f"process {process} was given another sweep than process 0 "
+                          f"({_first_difference(plan['spec'], spec)})")
+  if groups is None:
     groups = _planned_groups(plan, out, grids, n_dev)
-  else:
-    gplans = _build_groups(spec)
-    groups = [_resolve_group(spec, g, out, grids) for g in gplans]
-    first = 0
-    for group in groups:
-      g = group.plan
-      g["chunk_size"] = _chunk_size_for(group.config, len(g["rows"]), chunk_size, n_dev)
-      g["chunk_epochs"] = (spec["run"]["chunk_epochs"] or
-                           _default_chunk_epochs(group.config))
-      g["max_steps"] = group.config.max_steps
-      g["sim_config"] = _jsonable(dataclasses.asdict(group.config))
-      g["first_chunk"] = first
-      g["n_chunks"] = -(-len(g["rows"]) // g["chunk_size"])
-      first += g["n_chunks"]
-    all_names = list(spec["grid"]) + list(spec["random"])
-    plan = {"format": PLAN_FORMAT, "version": PLAN_VERSION, "jaxplore_version": __version__,
-            "jax_version": jax.__version__, "spec": spec, "names": all_names,
-            "chunk_size_requested": chunk_size, "n_chunks": first,
-            "rows": sum(len(g.plan["rows"]) for g in groups),
-            "groups": [g.plan for g in groups]}
-    if out is not None and process == 0:
-      out.mkdir(parents=True, exist_ok=True)
-      for path, gridmap in grids.items():
-        _save_world(gridmap, out / path)
-      _write_json(out / PLAN_FILE, plan)
-  _barrier("jaxplore-sweep-plan", n_processes)
   return _execute(plan, groups, out, n_dev, quiet, progress, process, n_processes)
+
+
+def _existing_plan(out: Path | None, spec: dict, quiet: bool) -> dict | None:
+  """The plan already in ``out`` if it is this sweep's; refuses a folder holding anything else."""
+  if out is None:
+    return None
+  if (out / PLAN_FILE).exists():
+    try:
+      existing = json.loads((out / PLAN_FILE).read_text())
+      same = existing.get("spec") == spec
+    except (ValueError, AttributeError):
+      raise ConfigError(f"{out} holds an unreadable {PLAN_FILE}; choose another --out") from None
+    if not same:
+      raise ConfigError(f"{out} already holds a different sweep "
+                        f"({_first_difference(existing.get('spec'), spec)}); finish it with "
+                        f"`jaxplore sweep --resume {out}` or choose another --out")
+    if not quiet:
+      print(f"jaxplore: {out} holds this same sweep: finished chunks are kept", file=sys.stderr)
+    return _read_plan(out)
+  if out.exists() and any(not p.name.endswith(".tmp") for p in out.iterdir()):
+    raise ConfigError(f"{out} is not empty and holds no sweep plan; choose another --out "
+                      f"(or --resume DIR for an interrupted sweep)")
+  return None
+
+
+def _new_plan(spec: dict, out, grids: dict, chunk_size, n_dev: int) -> tuple[dict, list[_Group]]:
+  """Rows, groups, chunk sizes (memory guard) and static configs of a new sweep (no compute)."""
+  import jax
+  groups = [_resolve_group(spec, g, out, grids) for g in _build_groups(spec)]
+  first = 0
+  for group in groups:
+    g = group.plan
+    g["chunk_size"] = _chunk_size_for(group.config, len(g["rows"]), chunk_size, n_dev)
+    g["chunk_epochs"] = spec["run"]["chunk_epochs"] or _default_chunk_epochs(group.config)
+    g["max_steps"] = group.config.max_steps
+    g["sim_config"] = _jsonable(dataclasses.asdict(group.config))
+    g["first_chunk"] = first
+    g["n_chunks"] = -(-len(g["rows"]) // g["chunk_size"])
+    first += g["n_chunks"]
+  plan = {"format": PLAN_FORMAT, "version": PLAN_VERSION, "jaxplore_version": __version__,
+          "jax_version": jax.__version__, "spec": spec,
+          "names": list(spec["grid"]) + list(spec["random"]), "chunk_size_requested": chunk_size,
+          "n_chunks": first, "rows": sum(len(g.plan["rows"]) for g in groups),
+          "groups": [g.plan for g in groups]}
+  return plan, groups
 
 
 def _planned_groups(plan: dict, out: Path, grids: dict, n_dev: int) -> list[_Group]:
