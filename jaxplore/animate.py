@@ -1,8 +1,9 @@
 """Animations of a saved run: belief map, trajectory and current path of chosen robots over time.
 
 A results folder keeps only the final belief of a few robots, so :func:`animate` *re-simulates* the
-chosen robots from ``config.json`` (same static config, same parameter values, same PRNG keys: a
-run is reproducible) and checks that the replayed trajectory equals the ``x``, ``y`` columns of
+chosen robots from ``config.json`` (a sweep folder: from its ``sweep_plan.json``, resolved by the
+sweep's own code) with the same static config, parameter values and PRNG keys (a run is
+reproducible), and checks that the replayed trajectory equals the ``x``, ``y`` columns of
 ``curves.parquet`` before drawing anything, so the animation shows the run that was recorded.
 
 Frames are taken at planning rounds (every ``replan_every`` motion steps at the finest); each
@@ -33,8 +34,9 @@ class Replay:
   """The chosen robots re-simulated, with snapshots between planning rounds.
 
   Attributes:
-    robots: indices of the robots in the run (panel order).
-    config: the run's ``config.json``.
+    robots: indices of the robots in the run (panel order); a sweep's global row numbers.
+    config: the folder's ``config.json``.
+    planner, world: names, for titles.
     occupied, res, origin: the truth map.
     x, y: f64[T, R] replayed positions after every step (T = steps replayed).
     steps_recorded: int[R] steps of each robot in ``curves.parquet`` (its last is its done step).
@@ -47,6 +49,8 @@ class Replay:
 
   robots: tuple
   config: dict
+  planner: str
+  world: str
   occupied: np.ndarray
   res: float
   origin: np.ndarray
@@ -58,7 +62,7 @@ class Replay:
 
 
 def load_run(run_dir) -> tuple[Path, dict, pd.DataFrame, pd.DataFrame]:
-  """(run_dir, config, episodes, curves) of a results folder written by ``jaxplore run --out``.
+  """(run_dir, config, episodes, curves) of a results folder of ``jaxplore run`` or ``sweep``.
 
   Raises:
     ConfigError: the folder or one of its files is missing.
@@ -66,15 +70,12 @@ def load_run(run_dir) -> tuple[Path, dict, pd.DataFrame, pd.DataFrame]:
   run_dir = Path(run_dir)
   if not run_dir.is_dir():
     raise ConfigError(f"run directory {str(run_dir)!r} does not exist")
-  missing = [n for n in ("config.json", "episodes.parquet", "curves.parquet", "maps.npz")
+  missing = [n for n in ("config.json", "episodes.parquet", "curves.parquet")
              if not (run_dir / n).is_file()]
   if missing:
-    raise ConfigError(f"{str(run_dir)!r} is not a results folder of `jaxplore run --out`: "
-                      f"{', '.join(missing)} missing")
+    raise ConfigError(f"{str(run_dir)!r} is not a finished results folder of `jaxplore run --out` "
+                      f"or `jaxplore sweep --out`: {', '.join(missing)} missing")
   config = json.loads((run_dir / "config.json").read_text())
-  for key in ("sim_config", "params", "planner_params", "robots", "seed"):
-    if key not in config:
-      raise ConfigError(f"{run_dir / 'config.json'} has no {key!r}; it was not written by `jaxplore run`")
   return (run_dir, config, pd.read_parquet(run_dir / "episodes.parquet"),
           pd.read_parquet(run_dir / "curves.parquet"))
 
@@ -101,13 +102,15 @@ def parse_robots(robots, n_robots: int) -> tuple[int, ...]:
 
 
 def _robot_seeds(config: dict, episodes: pd.DataFrame):
-  """One integer seed per robot of a run made with ``robot_seeds`` (sweeps), else None."""
-  if config.get("robot_seeds") is not None:
-    return [int(s) for s in config["robot_seeds"]]
-  if "sweep" in config:  # sweeps pass robot_seeds; episodes record them in the seed column
-    by_robot = episodes.sort_values("robot")
-    return [int(s) for s in by_robot["seed"]]
-  return None
+  """One integer seed per robot of a ``run(robot_seeds=...)`` call, else None (keys split from
+  ``seed``). config.json keeps only ``seed``; the episodes' seed column holds either that seed on
+  every row or the robot seeds. (A wrong guess cannot pass unnoticed: the replay would not match.)"""
+  if "seed" not in episodes:
+    return None
+  seeds = episodes.sort_values("robot")["seed"].to_numpy()
+  if np.all(seeds == int(config["seed"])):
+    return None
+  return [int(v) for v in seeds]
 
 
 def _select(value, robots, n_robots, name):
@@ -120,56 +123,127 @@ def _select(value, robots, n_robots, name):
   return arr[list(robots)]
 
 
-def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, progress: bool = True,
-               check: bool = True) -> Replay:
-  """Re-runs the chosen robots of a saved run and snapshots them at planning rounds.
+@dataclasses.dataclass
+class _Setup:
+  """What a replay needs: the chosen robots' static config, world, parameters, keys and starts."""
 
-  Args:
-    run_dir: a results folder of ``jaxplore run --out`` (or ``jaxplore sweep --out``).
-    robots: robot indices (ints or ``"0,1,2"``).
-    every: motion steps between frames, rounded up to a multiple of ``replan_every``; default:
-      the smallest such multiple that keeps at most ``max_frames`` frames.
-    progress: show a progress bar.
-    check: raise if the replayed trajectory differs from ``curves.parquet``.
-  Raises:
-    ConfigError: bad folder or robot index; with ``check``, a replay that does not reproduce the
-      recorded trajectory (e.g. a different JAX version changed the numbers).
-  """
-  run_dir, config, episodes, curves = load_run(run_dir)
+  robots: tuple
+  grid: object  # GridMap
+  planner: str
+  sim_config: object  # SimConfig
+  world: object  # sim.World
+  params: object  # Params, batched over the chosen robots
+  keys: object
+  starts: object
+
+
+def _run_setup(run_dir: Path, config: dict, episodes: pd.DataFrame, robots) -> _Setup:
+  """A ``jaxplore run`` folder: everything from config.json, the truth from maps.npz."""
+  for key in ("sim_config", "params", "planner_params", "robots", "seed"):
+    if key not in config:
+      raise ConfigError(f"{run_dir / 'config.json'} has no {key!r}; it was not written by "
+                        f"`jaxplore run` (nor is it a sweep folder with a plan)")
+  if not (run_dir / "maps.npz").is_file():
+    raise ConfigError(f"{str(run_dir)!r} has no maps.npz (the truth map of the run)")
   n_robots = int(config["robots"])
   robots = parse_robots(robots, n_robots)
-  if every is not None and not (isinstance(every, (int, np.integer)) and every >= 1):
-    raise ConfigError(f"every must be a positive number of steps, got {every!r}")
 
   import jax
   import jax.numpy as jnp
 
-  from jaxplore import sim
+  from jaxplore import runner, sim
   from jaxplore.config import Params, SimConfig
   from jaxplore.maps import GridMap
 
   sim_config = SimConfig(**config["sim_config"])
-  stored = np.load(run_dir / "maps.npz")
-  grid = GridMap(stored["occupied"], float(stored["res"]), tuple(np.asarray(stored["origin"]).tolist()),
-                 config.get("world", {}).get("name", "map"))
+  with np.load(run_dir / "maps.npz") as stored:
+    grid = GridMap(stored["occupied"], float(stored["res"]), tuple(np.asarray(stored["origin"]).tolist()),
+                   config.get("world", {}).get("name", "map"))
   values = {k: v for k, v in config["params"].items() if k in PARAM_FIELDS}
-  planner_values = config["planner_params"]
   # The run built its World with the largest robot radius of the whole batch.
   r_robot = float(np.max(np.asarray(values["r_robot"], np.float32)))
   start = config.get("start")
   world = sim.make_world(grid, r_robot, None if start is None else start[:2])
   params = Params(**{k: jnp.asarray(_select(v, robots, n_robots, k)) for k, v in values.items()},
-                  planner={k: jnp.asarray(_select(v, robots, n_robots, k)) for k, v in planner_values.items()})
-  params = sim.broadcast_params(params, len(robots))
-
+                  planner={k: jnp.asarray(_select(v, robots, n_robots, k))
+                           for k, v in config["planner_params"].items()})
   seeds = _robot_seeds(config, episodes)
   if seeds is None:
     keys = jax.random.split(jax.random.PRNGKey(int(config["seed"])), n_robots)[jnp.asarray(robots)]
   else:
     if len(seeds) != n_robots:
       raise ConfigError(f"{run_dir} records {len(seeds)} robot seeds for {n_robots} robots")
-    keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray([seeds[r] for r in robots], jnp.uint32))
+    keys = runner.robot_keys([seeds[r] for r in robots])
   starts = None if start is None else jnp.tile(jnp.asarray(start, jnp.float32), (len(robots), 1))
+  return _Setup(robots, grid, config.get("planner", sim_config.planner), sim_config, world,
+                sim.broadcast_params(params, len(robots)), keys, starts)
+
+
+def _sweep_setup(run_dir: Path, robots) -> _Setup:
+  """A ``jaxplore sweep`` folder: the robots (global row numbers) of one world × planner group,
+  resolved by the sweep's own code from its plan, as the sweep ran them."""
+  import jax.numpy as jnp
+
+  from jaxplore import runner, sim, sweeps
+  try:
+    plan = json.loads((run_dir / sweeps.PLAN_FILE).read_text())
+    groups, spec, n_robots = plan["groups"], plan["spec"], int(plan["rows"])
+  except (ValueError, KeyError, TypeError) as err:
+    raise ConfigError(f"{run_dir / sweeps.PLAN_FILE} is not a readable sweep plan ({err})") from None
+  robots = parse_robots(robots, n_robots)
+  where = {row["row"]: (g, row) for g, group in enumerate(groups) for row in group["rows"]}
+  chosen = {where[r][0] for r in robots}
+  if len(chosen) > 1:
+    def label(r):
+      group = groups[where[r][0]]
+      world = spec["worlds"][group["world"]]
+      return f"robot {r}: {world.get('name') or world.get('grid')} / {group['planner']}"
+    labels = [label(r) for r in robots]
+    raise ConfigError("the chosen robots ran in different world x planner groups (different "
+                      f"programs); animate one group at a time: {'; '.join(labels)}")
+  gplan = groups[chosen.pop()]
+  group = sweeps._resolve_group(spec, gplan, run_dir, {})
+  rows = [where[r][1] for r in robots]
+  params, planner_params = sweeps._group_params(group.run, gplan["planner"], gplan["names"], rows)
+  p = runner.build_params(gplan["planner"], group.run["preset"], group.grid.res, params, planner_params)
+  keys = runner.robot_keys([row["seed"] for row in rows])
+  starts = (None if group.start is None
+            else jnp.tile(jnp.asarray(group.start, jnp.float32), (len(robots), 1)))
+  return _Setup(robots, group.grid, gplan["planner"], group.config, group.world_dev,
+                sim.broadcast_params(p, len(robots)), keys, starts)
+
+
+def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, progress: bool = True,
+               check: bool = True) -> Replay:
+  """Re-runs the chosen robots of a saved run and snapshots them at planning rounds.
+
+  Args:
+    run_dir: a results folder of ``jaxplore run --out`` or ``jaxplore sweep --out``.
+    robots: robot indices (ints or ``"0,1,2"``); in a sweep, the ``robot`` column of its tables
+      (all from one world × planner group).
+    every: motion steps between frames, rounded up to a multiple of ``replan_every``; default:
+      the smallest such multiple that keeps at most ``max_frames`` frames.
+    progress: show a progress bar.
+    check: raise if the replayed trajectory differs from ``curves.parquet``.
+  Raises:
+    ConfigError: bad folder or robot index, sweep robots of different groups; with ``check``, a
+      replay that does not reproduce the recorded trajectory (e.g. a different JAX version
+      changed the numbers).
+  """
+  run_dir, config, episodes, curves = load_run(run_dir)
+  if every is not None and not (isinstance(every, (int, np.integer)) and every >= 1):
+    raise ConfigError(f"every must be a positive number of steps, got {every!r}")
+  from jaxplore import sweeps
+  if (run_dir / sweeps.PLAN_FILE).is_file():
+    setup = _sweep_setup(run_dir, robots)
+  else:
+    setup = _run_setup(run_dir, config, episodes, robots)
+  robots, sim_config, world, params, keys, starts = (
+      setup.robots, setup.sim_config, setup.world, setup.params, setup.keys, setup.starts)
+
+  import jax
+
+  from jaxplore import sim
 
   recorded = curves.groupby("robot").step.max()
   steps_recorded = np.asarray([int(recorded.get(r, 0)) for r in robots])
@@ -238,7 +312,9 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
           f"(by {dev[first]:.3g} m, at most {dev.max():.3g} m); the run was made with JAX "
           f"{config.get('jax_version', '?')} and jaxplore {config.get('jaxplore_version', '?')}, "
           f"this is JAX {jax.__version__}: an animation would not show the recorded run")
-  return Replay(robots=robots, config=config, occupied=grid.occupied, res=grid.res,
+  grid = setup.grid
+  return Replay(robots=robots, config=config, planner=setup.planner, world=grid.name,
+                occupied=grid.occupied, res=grid.res,
                 origin=np.asarray(grid.origin), x=x, y=y, steps_recorded=steps_recorded,
                 frames=frames, max_deviation_m=deviation)
 
@@ -310,7 +386,7 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
       status = sim.REASONS[int(frame["reason"][j])] if frame["done"][j] else "exploring"
       ax.set_title(f"robot {r}: {float(frame['time'][j]):.0f} s, coverage "
                    f"{100 * float(frame['coverage'][j]):.0f} % ({status})", fontsize=8)
-    title.set_text(f"{replay.config.get('planner', '')} on {replay.config.get('world', {}).get('name', '')}"
+    title.set_text(f"{replay.planner} on {replay.world}"
                    f", step {step}")
 
   if writer_name == "pillow":
@@ -359,7 +435,7 @@ def animate(run_dir, robots=(0,), out=None, every=None, fps: float = 8.0, progre
   """Writes an animation of robots of a saved run and returns its path.
 
   Args:
-    run_dir: a results folder of ``jaxplore run --out``.
+    run_dir: a results folder of ``jaxplore run --out`` or ``jaxplore sweep --out``.
     robots: robot indices, e.g. ``(0, 1, 2)`` or ``"0,1,2"``; one panel each.
     out: ``.gif`` (Pillow) or ``.mp4`` (needs ffmpeg); default
       ``RUN_DIR/animation_<robots>.gif``.

@@ -1,5 +1,6 @@
 """``jaxplore animate``: the replay reproduces the recorded run, the GIF has frames, bad input is refused."""
 
+import json
 import re
 import shutil
 
@@ -79,6 +80,43 @@ def test_a_tampered_trajectory_is_refused(run_dir, tmp_path):
   curves.loc[(curves.robot == 1) & (curves.step > 20), "x"] += 0.05
   curves.to_parquet(copy / "curves.parquet", index=False)
   with pytest.raises(ConfigError, match="robot 1 leaves the recorded trajectory at step 21"):
+    animate.resimulate(copy, (0, 1), progress=False)
+
+
+@pytest.fixture(scope="module")
+def sweep_dir(tmp_path_factory, run_dir):
+  """A two-setting sweep with the run's shapes (so its compiled program is the run's)."""
+  out = tmp_path_factory.mktemp("anim_sweep")
+  jaxplore.sweep({"r_max": [2.0, 3.0]}, seeds=[5], world=WORLD, planner="nearest_frontier",
+                 max_steps=40, replan_every=5, out=out, quiet=True, progress=False)
+  return out
+
+
+def test_replay_of_sweep_rows_reproduces_them(sweep_dir):
+  curves = pd.read_parquet(sweep_dir / "curves.parquet")
+  replay = animate.resimulate(sweep_dir, (1, 0), progress=False)
+  assert replay.planner == "nearest_frontier" and replay.world == "tiny_office"
+  for j, robot in enumerate((1, 0)):
+    curve = curves[curves.robot == robot].sort_values("step")
+    assert len(curve) > 10
+    np.testing.assert_allclose(replay.x[:len(curve), j], curve.x.to_numpy(), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(replay.y[:len(curve), j], curve.y.to_numpy(), rtol=0, atol=1e-6)
+  # Same seed, same start, different ranges: the rows really ran different settings.
+  episodes = pd.read_parquet(sweep_dir / "episodes.parquet").set_index("robot")
+  assert episodes.r_max[0] == 2.0 and episodes.r_max[1] == 3.0
+  assert replay.x[0, 0] == replay.x[0, 1] and replay.y[0, 0] == replay.y[0, 1]
+  entropy = [curves[curves.robot == r].entropy.to_numpy() for r in (0, 1)]
+  assert not np.allclose(entropy[0], entropy[1])
+
+
+def test_sweep_robots_of_different_groups_are_refused(sweep_dir, tmp_path):
+  copy = tmp_path / "copy"
+  shutil.copytree(sweep_dir, copy)
+  plan = json.loads((copy / "sweep_plan.json").read_text())
+  group = plan["groups"][0]
+  plan["groups"] = [dict(group, rows=group["rows"][:1]), dict(group, planner="frt", rows=group["rows"][1:])]
+  (copy / "sweep_plan.json").write_text(json.dumps(plan))
+  with pytest.raises(ConfigError, match="different world x planner groups.*robot 1: tiny_office / frt"):
     animate.resimulate(copy, (0, 1), progress=False)
 
 
