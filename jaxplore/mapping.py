@@ -131,25 +131,139 @@ def window_start(center, size: int, extent: int):
   return jnp.clip(center - size // 2, 0, max(extent - size, 0))
 
 
-def update_entropy_map(entropy_map, logodds, robot_rc, radius_cells, k, window: int):
+def _after(x, *deps):
+  """``x``, computed after ``deps`` (finite arrays broadcastable to ``x``).
+
+  XLA:CPU writes a window of a loop-carried grid in place only if every read of that grid is
+  scheduled before the write. A read whose value the written window does not depend on (a metric,
+  a gather) may be scheduled after it, and XLA then copies the whole batch of grids instead, at
+  every robot. Adding zero times the reads' results makes the write depend on them.
+  """
+  for dep in deps:
+    x = x + jnp.float32(0.0) * jnp.asarray(dep, x.dtype)
+  return x
+
+
+def update_entropy_map(entropy_map, logodds, robot_rc, radius_cells, k, window: int, robot=None):
   """Li Eq 3 within ``R_u`` of the robot: ``H ← k·H + (1−k)·Ĥ(P)``; cells farther keep their value.
 
   Args:
-    entropy_map: f32[H, W], the smoothed entropy map I_e.
-    logodds: f32[H, W] belief after this step's scan.
+    entropy_map: f32[H, W], the smoothed entropy map I_e (or f32[N, H, W] with ``robot``).
+    logodds: f32[H, W] belief after this step's scan (or f32[N, H, W] with ``robot``).
     robot_rc: f32[2] robot position in cell units (row, col coordinates).
     radius_cells: R_u = α·R_e in cells (traced).
     k: smoothing factor of Eq 3.
     window: static side of the square window that bounds R_u.
+    robot: None for single grids; else the i32 index of the robot whose grids (leading axis of
+      stacked per-robot grids) are read and updated (in place inside :func:`per_robot`).
   """
-  h, w = entropy_map.shape
+  stacked = robot is not None
+  h, w = entropy_map.shape[-2:]
   sh, sw = min(window, h), min(window, w)
   r0 = window_start(jnp.floor(robot_rc[0]).astype(jnp.int32), sh, h)
   c0 = window_start(jnp.floor(robot_rc[1]).astype(jnp.int32), sw, w)
-  e = jax.lax.dynamic_slice(entropy_map, (r0, c0), (sh, sw))
-  l = jax.lax.dynamic_slice(logodds, (r0, c0), (sh, sw))
+  start = (robot, r0, c0) if stacked else (r0, c0)
+  size = (1, sh, sw) if stacked else (sh, sw)
+  e = jax.lax.dynamic_slice(entropy_map, start, size).reshape(sh, sw)
+  l = jax.lax.dynamic_slice(logodds, start, size).reshape(sh, sw)
   rows = r0 + jnp.arange(sh, dtype=jnp.float32)[:, None] + 0.5
   cols = c0 + jnp.arange(sw, dtype=jnp.float32)[None, :] + 0.5
   near = (rows - robot_rc[0]) ** 2 + (cols - robot_rc[1]) ** 2 <= radius_cells**2
   e = jnp.where(near, k * e + (1.0 - k) * entropy_of_logodds(l), e)
-  return jax.lax.dynamic_update_slice(entropy_map, e, (r0, c0))
+  return jax.lax.dynamic_update_slice(entropy_map, e.reshape(size), start)
+
+
+def integrate_observation(logodds, robot, observed, reachable, params, after=0.0):
+  """Adds one scan to one robot's belief (Li's inverse sensor model), touching only observed tiles.
+
+  Every cell seen free adds ``l_free`` once, every cell seen occupied ``l_occ`` once (clamped to
+  ``[l_min, l_max]``). Only the tiles of ``observed`` that hold an observation are read, updated
+  and written back, one at a time (in place inside :func:`per_robot`): a scan sees a few thousand
+  cells, and the cell entropy (Li Eq 2) of a whole grid before and after the update, which a
+  full-grid update needs for the entropy change, costs far more than the update itself.
+
+  Args:
+    logodds: f32[N, H, W] per-robot beliefs; robot ``robot``'s grid is updated.
+    robot: i32 index of the robot.
+    observed: int8[ceil(H / T), ceil(W / T), T, T] tiles of the observation (cell (r, c) at
+      ``[r // T, c // T, r % T, c % T]``): 1 seen free, 2 seen occupied, 0 not seen
+      (:func:`jaxplore.sensor.observation_tiles`).
+    reachable: bool[H, W] cells that count for coverage.
+    params: supplies ``l_free``, ``l_occ``, ``l_min``, ``l_max``, ``p_free``.
+    after: a finite scalar computed from reads of ``logodds`` that must happen before the update
+      (see :func:`_after`).
+
+  Returns:
+    ``(logodds, d_entropy, d_covered)``: the updated beliefs, the change of the robot's map
+    entropy Σ Ĥ (f32, nats) and of its count of reachable cells believed free (i32).
+  """
+  _, h, w = logodds.shape
+  n_cols, th, tw = observed.shape[1:]
+  wh, ww = min(th, h), min(tw, w)
+  seen = jnp.max(observed, axis=(2, 3)).ravel() > 0
+  tiles = jnp.nonzero(seen, size=seen.size, fill_value=0)[0]
+  free_threshold = logit(params.p_free)
+  rows = jnp.arange(wh)[:, None]
+  cols = jnp.arange(ww)[None, :]
+
+  def update_tile(j, carry):
+    logodds, d_entropy, d_covered = carry
+    tile_row, tile_col = tiles[j] // n_cols, tiles[j] % n_cols
+    top, left = tile_row * th, tile_col * tw
+    # A tile past the grid's last row or column is read from a window moved back inside the
+    # grid; the window's cells before the tile belong to the neighbouring tile.
+    r0, c0 = jnp.minimum(top, h - wh), jnp.minimum(left, w - ww)
+    padded = jnp.pad(observed[tile_row, tile_col], ((th, 0), (tw, 0)))
+    obs = jax.lax.dynamic_slice(padded, (th + r0 - top, tw + c0 - left), (wh, ww))
+    own = (r0 + rows >= top) & (c0 + cols >= left)
+    old = jax.lax.dynamic_slice(logodds, (robot, r0, c0), (1, wh, ww))[0]
+    reach = jax.lax.dynamic_slice(reachable, (r0, c0), (wh, ww))
+    new = jnp.where(own, update_logodds(old, obs, params), old)
+    d_entropy = d_entropy + (entropy_of_logodds(new) - entropy_of_logodds(old))
+    d_covered = d_covered + ((reach & (new < free_threshold)).astype(jnp.int32)
+                             - (reach & (old < free_threshold)).astype(jnp.int32))
+    new = _after(new, d_entropy, d_covered)
+    return jax.lax.dynamic_update_slice(logodds, new[None], (robot, r0, c0)), d_entropy, d_covered
+
+  init = (logodds, _after(jnp.zeros((wh, ww), jnp.float32), after), jnp.zeros((wh, ww), jnp.int32))
+  logodds, d_entropy, d_covered = jax.lax.fori_loop(0, jnp.sum(seen), update_tile, init)
+  return logodds, jnp.sum(d_entropy), jnp.sum(d_covered)
+
+
+def per_robot(fn):
+  """Batches a one-robot update of per-robot grids as a loop over the robots, in place.
+
+  ``fn(robot, grids, inputs) -> (grids, outputs)`` updates robot ``robot`` of ``grids`` (a pytree
+  of arrays with a leading robot axis) and returns that robot's outputs. The result is a function
+  of one robot, ``(grids, inputs) -> (grids, outputs)`` without the robot axis. Under ``vmap`` it
+  calls ``fn`` for each robot in turn on the whole batch of grids, updated in place.
+
+  Why not a plain ``vmap``: the per-robot work here is irregular. Under ``vmap`` a window at a
+  per-robot offset becomes a gather and a scatter over the batch, a scatter into per-robot grids
+  costs ~5x more per element than one robot's, and a data-dependent loop (a lidar walk that stops
+  at the walls) runs for every robot until the slowest is done. One robot at a time, its maps
+  stay in cache and each loop stops when that robot is done.
+  """
+  @jax.custom_batching.custom_vmap
+  def one(grids, inputs):
+    grids, outputs = fn(0, jax.tree.map(lambda g: g[None], grids), inputs)
+    return jax.tree.map(lambda g: g[0], grids), outputs
+
+  @one.def_vmap
+  def batched(axis_size, in_batched, grids, inputs):
+    grids_batched, inputs_batched = in_batched
+    grids = jax.tree.map(lambda g, b: g if b else jnp.broadcast_to(g, (axis_size,) + g.shape),
+                         grids, grids_batched)
+    robot_inputs = lambda i: jax.tree.map(lambda x, b: x[i] if b else x, inputs, inputs_batched)
+    out_shapes = jax.eval_shape(lambda g: fn(0, g, robot_inputs(0))[1], grids)
+    outputs = jax.tree.map(lambda s: jnp.zeros((axis_size,) + s.shape, s.dtype), out_shapes)
+
+    def body(i, carry):
+      grids, outputs = carry
+      grids, out = fn(i, grids, robot_inputs(i))
+      return grids, jax.tree.map(lambda acc, o: acc.at[i].set(o), outputs, out)
+
+    result = jax.lax.fori_loop(0, axis_size, body, (grids, outputs))
+    return result, jax.tree.map(lambda _: True, result)
+
+  return one

@@ -167,74 +167,62 @@ def cell_centre(cell, origin, res):
 def _sense(config: SimConfig, world: World, params: Params, state: State, key, active):
   """Scan, relocalise, integrate into the belief, update the entropy map and the running metrics.
 
-  ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched without
-  selecting whole grids.
+  ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched; such a
+  robot casts no beam. Under ``vmap`` the robots are processed one after the other with their
+  maps updated in place (:func:`mapping.per_robot` says why that beats a ``vmap`` here).
   """
   res = config.res
-  h, w = config.height, config.width
+  shape = (config.height, config.width)
   n_cross = config.max_range_cells + 1
-  true_uv = to_cells(state.pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
+
+  def one(robot, grids, inputs):
+    logodds, entropy_map = grids
+    params, pose, pose_est, cov, key, active, angles, dirs, est_dirs = inputs
+    true_uv = to_cells(pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
+    noise_key, _ = jax.random.split(key)
+    scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles, params.r_max / res,
+                          n_cross, key=noise_key, noise_cells=params.range_noise / res, active=active,
+                          dirs=dirs)
+    if config.pose_noise:
+      # The scan is integrated where the robot believes it is; beams keep their robot-frame angle.
+      est_uv = to_cells(pose_est[:2], world.origin, res)[::-1]
+      scan = scan._replace(angles=angles - pose[2] + pose_est[2])
+      exact = jnp.bool_(False)
+    else:
+      est_uv = true_uv
+      exact = params.range_noise <= 0
+    end_rows, end_cols = sensor.end_cells(scan, est_uv[0], est_uv[1], exact, est_dirs)
+    observed = sensor.mark_observed(sensor.empty_observation(shape), shape, scan, est_uv[0], est_uv[1],
+                                    end_rows, end_cols, n_cross, active, est_dirs)
+
+    # Relocalisation (SPEC §1): enough beams end on occupied cells the belief already knows well.
+    old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0)
+    well_mapped = (old_end > mapping.logit(params.p_occ)) & (
+        mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
+    hits = jnp.sum(well_mapped & scan.hit)
+    meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy, params.reloc_var_theta]))
+    new_est, new_cov = motion.relocalise(pose_est, cov, pose, meas_cov)
+    reloc = active & (hits >= params.reloc_min_hits)
+    pose_est = jnp.where(reloc, new_est, pose_est)
+    cov = jnp.where(reloc, new_cov, cov)
+
+    logodds, d_entropy, d_covered = mapping.integrate_observation(
+        logodds, robot, sensor.observation_tiles(observed, shape), world.reachable, params,
+        after=jnp.sum(old_end))
+    ru_cells = jnp.where(active, params.alpha * params.r_e / res, 0.0)
+    entropy_map = mapping.update_entropy_map(
+        entropy_map, logodds, to_cells(pose_est[:2], world.origin, res), ru_cells, params.entropy_k,
+        2 * config.max_update_radius_cells + 3, robot=robot)
+    return (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered)
+
+  # Beam directions are computed here, for the whole batch at once, rather than inside the
+  # per-robot loop (see sensor.measure).
   angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
-  noise_key, _ = jax.random.split(key)
-  scan, cells = sensor.cast(world.truth_framed, (h, w), true_uv[0], true_uv[1], angles,
-                            params.r_max / res, n_cross, key=noise_key,
-                            noise_cells=params.range_noise / res)
-
-  pose_est, cov = state.pose_est, state.cov
-  if config.pose_noise:
-    # The scan is integrated where the robot believes it is; beams keep their robot-frame angle.
-    est_angles = angles - state.pose[2] + pose_est[2]
-    est_uv = to_cells(pose_est[:2], world.origin, res)[::-1]
-    est_cells = sensor.trace(est_uv[0], est_uv[1], est_angles, n_cross)
-    scan_est = scan._replace(angles=est_angles)
-    exact = jnp.bool_(False)
-  else:
-    est_uv, est_cells, scan_est = true_uv, cells, scan
-    exact = params.range_noise <= 0
-
-  # The belief changes only in a window around the (estimated) robot that bounds every beam.
-  # Under vmap a window at a per-robot offset becomes a gather/scatter of the whole window, so a
-  # window is used only where it is much smaller than the grid.
-  size = (min(2 * config.max_range_cells + 5, h), min(2 * config.max_range_cells + 5, w))
-  windowed = size[0] * size[1] < 0.5 * h * w
-  if windowed:
-    est_rc = jnp.floor(est_uv[::-1]).astype(jnp.int32)
-    origin = jnp.stack([mapping.window_start(est_rc[0], size[0], h),
-                        mapping.window_start(est_rc[1], size[1], w)])
-  else:
-    size, origin = (h, w), jnp.zeros((2,), jnp.int32)
-  obs = sensor.observe(scan_est, est_cells, est_uv[0], est_uv[1], (h, w), exact, origin, size)
-
-  # Relocalisation (SPEC §1): enough beams end on occupied cells the belief already knows well.
-  old_end = state.logodds.at[obs.end_rows, obs.end_cols].get(mode="fill", fill_value=0.0)
-  well_mapped = (old_end > mapping.logit(params.p_occ)) & (
-      mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
-  hits = jnp.sum(well_mapped & obs.hit)
-  meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy, params.reloc_var_theta]))
-  new_est, new_cov = motion.relocalise(pose_est, cov, state.pose, meas_cov)
-  reloc = active & (hits >= params.reloc_min_hits)
-  pose_est = jnp.where(reloc, new_est, pose_est)
-  cov = jnp.where(reloc, new_cov, cov)
-
-  observed = jnp.where(active, sensor.observation_grid(obs, size), jnp.int8(0))
-  if windowed:
-    old = jax.lax.dynamic_slice(state.logodds, (origin[0], origin[1]), size)
-    reach = jax.lax.dynamic_slice(world.reachable, (origin[0], origin[1]), size)
-  else:
-    old, reach = state.logodds, world.reachable
-  new = mapping.update_logodds(old, observed, params)
-  free_threshold = mapping.logit(params.p_free)
-  d_entropy = jnp.sum(mapping.entropy_of_logodds(new) - mapping.entropy_of_logodds(old))
-  d_covered = jnp.sum(reach & (new < free_threshold)) - jnp.sum(reach & (old < free_threshold))
-  if windowed:
-    logodds = jax.lax.dynamic_update_slice(state.logodds, new, (origin[0], origin[1]))
-  else:
-    logodds = new
-
-  ru_cells = jnp.where(active, params.alpha * params.r_e / res, 0.0)
-  entropy_map = mapping.update_entropy_map(
-      state.entropy_map, logodds, to_cells(pose_est[:2], world.origin, res), ru_cells,
-      params.entropy_k, 2 * config.max_update_radius_cells + 3)
+  est_angles = angles - state.pose[2] + state.pose_est[2] if config.pose_noise else angles
+  inputs = (params, state.pose, state.pose_est, state.cov, key, active, angles,
+            sensor.directions(angles), sensor.directions(est_angles))
+  (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered) = mapping.per_robot(one)(
+      (state.logodds, state.entropy_map), inputs)
   return state.replace(pose_est=pose_est, cov=cov, logodds=logodds, entropy_map=entropy_map,
                        entropy=state.entropy + d_entropy, covered=state.covered + d_covered)
 

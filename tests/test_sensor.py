@@ -1,4 +1,5 @@
-"""Lidar traversal against a brute-force finely sampled reference, and the diagonal-leak rule."""
+"""Lidar traversal against a brute-force finely sampled reference, the diagonal-leak rule, and the
+engine's early-stopping walk (measure, mark_observed) against the plain enumeration (trace)."""
 
 import math
 
@@ -123,22 +124,115 @@ def test_beam_angles_cover_fov():
   assert full[-1] - full[0] < 2 * math.pi - 1e-3  # the first ray is not repeated
 
 
-def test_observe_marks_traversed_cells_free_and_end_occupied():
+def test_mark_observed_marks_traversed_cells_free_and_end_occupied():
   occupied = np.zeros((20, 20), bool)
   occupied[:, 15] = True
-  u0, v0 = 5.5, 10.5
+  u0, v0 = jnp.float32(5.5), jnp.float32(10.5)
   angles = jnp.asarray([0.0], jnp.float32)
-  scan, cells = sensor.cast(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, jnp.float32(u0), jnp.float32(v0), angles, 18.0, 19)
-  obs = sensor.observe(scan, cells, u0, v0, occupied.shape, jnp.bool_(True), jnp.asarray([0, 0]), (20, 20))
-  grid = np.asarray(sensor.observation_grid(obs, (20, 20)))
+  scan = sensor.measure(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, u0, v0, angles, 18.0, 19)
+  end_rows, end_cols = sensor.end_cells(scan, u0, v0, jnp.bool_(True))
+  observed = sensor.mark_observed(sensor.empty_observation((20, 20)), (20, 20), scan, u0, v0, end_rows,
+                                  end_cols, 19)
+  grid = np.asarray(sensor.observation_grid(observed, (20, 20)))
   assert {tuple(c) for c in np.argwhere(grid == 1)} == {(10, c) for c in range(5, 15)}
   assert {tuple(c) for c in np.argwhere(grid == 2)} == {(10, 15)}
-  # a window that cuts the beam keeps only its own cells, at window coordinates
-  obs = sensor.observe(scan, cells, u0, v0, occupied.shape, jnp.bool_(True), jnp.asarray([8, 10]), (4, 8))
-  grid = np.asarray(sensor.observation_grid(obs, (4, 8)))
-  assert {tuple(c) for c in np.argwhere(grid == 1)} == {(2, c) for c in range(0, 5)}
-  assert {tuple(c) for c in np.argwhere(grid == 2)} == {(2, 5)}
   np.testing.assert_allclose(float(scan.ranges[0]), 15 - 5.5, atol=1e-5)
+  inactive = sensor.mark_observed(sensor.empty_observation((20, 20)), (20, 20), scan, u0, v0, end_rows,
+                                  end_cols, 19, active=jnp.bool_(False))
+  assert not np.asarray(inactive[:-1]).any()
+
+
+# The reference enumeration is compiled: XLA contracts ``t0 + k * step`` into a fused multiply-add
+# inside compiled code (the engine's loops always are), so op-by-op results can differ by an ulp.
+_trace = jax.jit(sensor.trace, static_argnums=3)
+
+
+def _first_hits_from_trace(occupied, u0, v0, angles, r_max, n_cross):
+  """The definition: the first occupied entry of trace() by distance (argmin: lowest index on ties)."""
+  cells = _trace(jnp.float32(u0), jnp.float32(v0), jnp.asarray(angles), n_cross)
+  rows, cols, t = (np.asarray(a) for a in cells)
+  framed = np.pad(occupied, 1, constant_values=True)
+  h, w = occupied.shape
+  occ = framed[np.clip(rows + 1, 0, h + 1), np.clip(cols + 1, 0, w + 1)]
+  t_block = np.where(occ & (t <= r_max), t, np.inf)
+  first = np.argmin(t_block, axis=1)
+  beam = np.arange(len(angles))
+  return t_block[beam, first], rows[beam, first], cols[beam, first], (rows, cols, t)
+
+
+# Origins at cell centres and on grid lines, beams along the axes and the diagonals: the corner
+# and tie cases of the closed form, plus random ones.
+def _awkward_poses(rng, free_cells, count):
+  for i in range(count):
+    r, c = free_cells[rng.integers(len(free_cells))]
+    du, dv = [(0.5, 0.5), (0.0, 0.5), (0.5, 0.0), (0.0, 0.0)][i % 4] if i < 8 else rng.uniform(0.01, 0.99, 2)
+    base = rng.uniform(-math.pi, math.pi) if i % 3 else 0.0
+    angles = base + np.concatenate([np.arange(8) * math.pi / 4, rng.uniform(-math.pi, math.pi, 40)])
+    yield c + du, r + dv, angles.astype(np.float32)
+
+
+@EAGER_AND_JIT
+def test_measure_equals_first_occupied_entry_of_trace(transform):
+  rng = np.random.default_rng(5)
+  h, w = 24, 31
+  occupied = rng.random((h, w)) < 0.12
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  measure = transform(lambda u, v, a, r: sensor.measure(truth, (h, w), u, v, a, r, 30))
+  for u0, v0, angles in _awkward_poses(rng, np.argwhere(~occupied), 14):
+    for r_max in (3.0, 7.5, 29.0):
+      scan = measure(jnp.float32(u0), jnp.float32(v0), jnp.asarray(angles), jnp.float32(r_max))
+      t_ref, rows_ref, cols_ref, _ = _first_hits_from_trace(occupied, u0, v0, angles, r_max, 30)
+      np.testing.assert_array_equal(np.asarray(scan.true_ranges), np.minimum(t_ref, r_max))
+      np.testing.assert_array_equal(np.asarray(scan.hit), np.isfinite(t_ref))
+      np.testing.assert_array_equal(np.asarray(scan.hit_rows), rows_ref)
+      np.testing.assert_array_equal(np.asarray(scan.hit_cols), cols_ref)
+
+
+def test_measure_of_an_inactive_robot_hits_nothing():
+  occupied = np.ones((8, 8), bool)
+  occupied[3, 3] = False
+  scan = sensor.measure(sensor.frame_truth(jnp.asarray(occupied)), (8, 8), jnp.float32(3.5), jnp.float32(3.5),
+                        jnp.linspace(-3, 3, 40), 5.0, 6, active=jnp.bool_(False))
+  assert not np.asarray(scan.hit).any()
+  np.testing.assert_array_equal(np.asarray(scan.ranges), 5.0)
+
+
+@EAGER_AND_JIT
+def test_mark_observed_equals_the_cells_of_trace(transform):
+  """Free = entered before the measured range and not the beam's end cell; end cells occupied."""
+  rng = np.random.default_rng(6)
+  h, w = 26, 21
+  occupied = rng.random((h, w)) < 0.1
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+
+  def observe(u, v, a, key, noise, offset, exact):
+    scan = sensor.measure(truth, (h, w), u, v, a, 12.0, 13, key=key, noise_cells=noise)
+    eu, ev = u + offset[0], v + offset[1]  # where the robot believes it is
+    scan = scan._replace(angles=a + offset[2])
+    end_rows, end_cols = sensor.end_cells(scan, eu, ev, exact)
+    observed = sensor.mark_observed(sensor.empty_observation((h, w)), (h, w), scan, eu, ev, end_rows,
+                                    end_cols, 13)
+    return scan, end_rows, end_cols, sensor.observation_grid(observed, (h, w))
+
+  observe = transform(observe)
+  for i, (u0, v0, angles) in enumerate(_awkward_poses(rng, np.argwhere(~occupied), 12)):
+    exact = i % 3 == 0  # the scan integrated from the pose it was cast from, without noise
+    noise = 0.0 if exact else 0.6 * (i % 2)
+    offset = np.zeros(3, np.float32) if exact else rng.normal(0, [0.6, 0.6, 0.05]).astype(np.float32)
+    scan, end_rows, end_cols, grid = observe(jnp.float32(u0), jnp.float32(v0), jnp.asarray(angles),
+                                              jax.random.PRNGKey(i), noise, jnp.asarray(offset),
+                                              jnp.bool_(exact))
+    cells = _trace(jnp.float32(u0) + offset[0], jnp.float32(v0) + offset[1], jnp.asarray(angles) + offset[2], 13)
+    rows, cols, t = (np.asarray(a) for a in cells)
+    end_rows, end_cols, hit = (np.asarray(a) for a in (end_rows, end_cols, scan.hit))
+    is_end = (rows == end_rows[:, None]) & (cols == end_cols[:, None]) & hit[:, None]
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    free = (t < np.asarray(scan.ranges)[:, None]) & ~is_end & inside
+    expected = np.zeros((h, w), np.int8)
+    expected[rows[free], cols[free]] = 1
+    ends_inside = hit & (end_rows >= 0) & (end_rows < h) & (end_cols >= 0) & (end_cols < w)
+    expected[end_rows[ends_inside], end_cols[ends_inside]] = 2
+    np.testing.assert_array_equal(np.asarray(grid), expected)
 
 
 def test_range_noise_changes_ranges_only_for_hits():
