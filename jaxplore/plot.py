@@ -129,7 +129,7 @@ def sweep_figure(episodes: pd.DataFrame, names, path) -> Path:
   grouped = episodes.groupby(list(names), sort=True, dropna=False)
   show = lambda v: v if isinstance(v, str) else ("-" if v != v else f"{v:g}")  # NaN: not swept there
   labels = [", ".join(f"{n}={show(v)}" for n, v in zip(names, key if isinstance(key, tuple) else (key,)))
-            for key in grouped.groups]
+            for key, _ in grouped]
   fig, axes = plt.subplots(2, 1, figsize=(max(6, 0.45 * len(labels) + 2), 7), sharex=True)
   for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre E_r (nats/m)"),
                             (axes[1], "coverage", "coverage of reachable free area")):
