@@ -66,12 +66,24 @@ def main(argv=None):
   for world in args.worlds.split(","):
     spec, res = WORLDS[world]
     for planner in PLANNERS:
+      # Each (world, planner) pair is saved as soon as it is done and reused by a later
+      # invocation with the same settings, so a long table can be built in several sittings.
+      tag = f"{world}_{planner}_s{args.seeds}_m{args.max_steps or 'auto'}"
+      part_e, part_c = out / f"{tag}.episodes.parquet", out / f"{tag}.curves.parquet"
+      if part_e.exists() and part_c.exists():
+        episodes.append(pd.read_parquet(part_e))
+        curves.append(pd.read_parquet(part_c))
+        print(f"{world:12s} {planner:17s} reused {part_e.name}", flush=True)
+        continue
       t0 = time.perf_counter()
       result = jaxplore.run(world=spec, planner=planner, robots=args.seeds, seed=0, preset="li2020",
                             res=res, max_steps=args.max_steps, progress=False, quiet=True,
                             robot_seeds=list(range(args.seeds)), devices=args.devices)
-      e = result.episodes.assign(world=world)
+      e = result.episodes.assign(world=world, wall_s=time.perf_counter() - t0)
       c = result.curves.assign(world=world, planner=planner)
+      for frame, path in ((e, part_e), (c, part_c)):
+        frame.to_parquet(path.with_name(path.name + ".tmp"), index=False)
+        os.replace(path.with_name(path.name + ".tmp"), path)
       episodes.append(e)
       curves.append(c)
       reasons = e.reason.value_counts().to_dict()
