@@ -28,6 +28,7 @@ def main(argv=None):
   import dataclasses
 
   import jax
+import jax.numpy as jnp
   import numpy as np
   from jax.sharding import Mesh, PartitionSpec as P
 
@@ -47,8 +48,8 @@ def main(argv=None):
       states = sim.reset_batch(config, world, params_b, keys)
       states, _ = sim.advance(config, world, params_b, states, args.warm_steps // config.replan_every)
     n_dev = min(args.devices, len(jax.devices()))
-    plan_one = lambda p, s: sim.plan(config, world, p, s)
-    fn = lambda p, s: sim._batched(plan_one, config.plan_chunk)(p, s)
+    # Every robot plans (as when all arrive at once): the engine's per-robot planning loop.
+    fn = lambda p, s: sim.plan_where_needed(config, world, p, s.replace(busy=jnp.zeros_like(s.busy)))
     if n_dev > 1:
       mesh = Mesh(np.array(jax.devices()[:n_dev]), ("robots",))
       fn = jax.shard_map(fn, mesh=mesh, in_specs=(P("robots"), P("robots")), out_specs=P("robots"),

@@ -11,7 +11,7 @@ against the truth -> relocalise (a Kalman update of the covariance) if enough be
 well-mapped walls -> add the inverse sensor model once per observed cell -> update the map
 entropy and coverage (in the bounding box of the scan's cells, as the engine does in a window
 around the robot) -> update the entropy map within ``R_u`` (Li Eq 3) -> termination. Every
-``replan_every`` steps the robot plans: belief classes, inflation (``scipy.ndimage``), frontier
+``replan_every`` steps, or after an idle step (path done), the robot plans: belief classes, inflation (``scipy.ndimage``), frontier
 mask, an 8-connected graph of traversable cells built as a CSR matrix with vectorised NumPy,
 ``scipy.sparse.csgraph.dijkstra`` from the robot with predecessors, the nearest frontier cell.
 
@@ -365,6 +365,8 @@ class Robot:
   last_goal: tuple = (-1, -1)
   steps: int = 0
   idle_steps: int = 0
+  since_plan: int = 0
+  busy: bool = False
   time: float = 0.0
   distance: float = 0.0
   entropy: float = 0.0
@@ -499,6 +501,7 @@ class ReferenceSimulator:
         robot.blacklist[result.goal] = True  # chosen twice while standing on it
       robot.waypoints, robot.path_idx = result.waypoints, min(1, len(result.waypoints))
       robot.look_at, robot.last_goal = result.look_at, result.goal
+    robot.since_plan = 0
     self.timing["plan"] += time.perf_counter() - t0
 
   def step(self) -> None:
@@ -525,6 +528,8 @@ class ReferenceSimulator:
     robot.pose = new_pose
     robot.steps += 1
     robot.idle_steps += int(not busy)
+    robot.since_plan += 1
+    robot.busy = busy
     robot.time += p["dt"] if busy else 0.0
     robot.distance += delta_d
     self.timing["motion"] += time.perf_counter() - t0
@@ -540,7 +545,8 @@ class ReferenceSimulator:
 
 def run_reference(grid, params_dict: Mapping[str, Any], config, start_pose, n_steps: int) -> dict:
   """Runs one robot for ``n_steps`` motion steps (or until it is done), planning every
-  ``config.replan_every`` steps as the engine's epochs do.
+  when its last step was idle or ``config.replan_every`` steps after its last plan, as the
+  engine's robots do (``jaxplore.sim.needs_plan``).
 
   Args:
     grid: the truth (anything with ``occupied``, ``res``, ``origin``: a ``jaxplore.maps.GridMap``).
@@ -563,7 +569,7 @@ def run_reference(grid, params_dict: Mapping[str, Any], config, start_pose, n_st
   for t in range(n_steps):
     if robot.done:
       break
-    if t % sim.replan_every == 0:
+    if not robot.busy or robot.since_plan >= sim.replan_every:
       sim.plan()
     sim.step()
     curve.append(sim.coverage)

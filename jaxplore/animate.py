@@ -8,8 +8,7 @@ reproducible), and checks that the replayed trajectory equals the ``x``, ``y`` c
 
 Frames are taken at planning rounds (every ``replan_every`` motion steps at the finest); each
 shows, per robot, its log-odds belief over the truth, its trajectory so far (at step resolution),
-and the path and goal its planner chooses at that moment (read from the state after the next
-round: the engine installs the plan there, so the path drawn is the one the robot then follows).
+and the rest of the path it is following at that moment (from its cell to its goal).
 """
 
 from __future__ import annotations
@@ -42,8 +41,9 @@ class Replay:
     steps_recorded: int[R] steps of each robot in ``curves.parquet`` (its last is its done step).
     frames: snapshots at planning rounds, each a dict with ``step`` (int), ``logodds``
       f16[R, H, W], ``pose`` f32[R, 3], ``time``, ``coverage`` f32[R], ``done`` bool[R],
-      ``reason`` i32[R], and the plan chosen at that round: ``waypoints`` i32[R, L, 2],
-      ``path_len`` i32[R], ``goal`` i32[R, 2], ``planned`` bool[R] (False: done, or no candidate).
+      ``reason`` i32[R], and the rest of the path being followed: ``waypoints`` i32[R, L + 1, 2]
+      (the robot's cell, then the waypoints still ahead), ``path_len`` i32[R], ``goal`` i32[R, 2],
+      ``planned`` bool[R] (False: done, or no waypoint ahead).
     max_deviation_m: largest |replayed − recorded| position over the recorded steps.
   """
 
@@ -260,18 +260,24 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
     frame["logodds"] = np.asarray(state.logodds).astype(np.float16)
     frame["coverage"] = np.asarray(state.covered) / float(world.n_reachable)
     frame["step"] = step
-    return frame
-
-  def with_plan(frame, after):
-    """The plan of the round at ``frame``: ``plan`` runs first in a round, so the state after the
-    round holds it (a waypoint found blocked on the way shortens ``path_len``)."""
-    frame.update(waypoints=np.asarray(after.waypoints), path_len=np.asarray(after.path_len),
-                 goal=np.asarray(after.goal))
-    frame["planned"] = ~frame["done"] & (frame["path_len"] > 0)
+    # The path still ahead: a robot plans when it needs to, at the start of a step, so the state
+    # holds the path it is following; waypoints before path_idx are behind it.
+    waypoints, path_idx = np.asarray(state.waypoints), np.asarray(state.path_idx)
+    path_len = np.asarray(state.path_len)
+    cells = np.floor((frame["pose"][:, [1, 0]] - np.asarray(world.origin)[[1, 0]]) / sim_config.res)
+    ahead = np.full((len(robots), waypoints.shape[1] + 1, 2), -1, np.int32)
+    lengths = np.zeros(len(robots), np.int32)
+    for j in range(len(robots)):
+      rest = waypoints[j, path_idx[j]: max(path_idx[j], path_len[j])]
+      ahead[j, 0] = cells[j]
+      ahead[j, 1: 1 + len(rest)] = rest
+      lengths[j] = 1 + len(rest)
+    frame.update(waypoints=ahead, path_len=lengths, goal=np.asarray(state.goal))
+    frame["planned"] = ~frame["done"] & (lengths > 1)
     return frame
 
   state = sim.reset_batch(sim_config, world, params, keys, starts)
-  frames, pending = [], snapshot(state, 0)
+  frames = [snapshot(state, 0)]
   xs, ys = [], []
   bar = None
   if progress:
@@ -282,16 +288,10 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
       state, rec = sim.advance(sim_config, world, params, state, n_epochs=1)
       xs.append(np.asarray(rec.x, np.float64))
       ys.append(np.asarray(rec.y, np.float64))
-      if pending is not None:
-        frames.append(with_plan(pending, state))
-        pending = None
       if k % every_epochs == 0 or k == n_epochs:
-        pending = snapshot(state, k * per_epoch)
+        frames.append(snapshot(state, k * per_epoch))
       if bar is not None:
         bar.update(per_epoch)
-    if not pending["done"].all():  # an interrupted run: one more round shows the last plan
-      state, _ = sim.advance(sim_config, world, params, state, n_epochs=1)
-    frames.append(with_plan(pending, state))
   finally:
     if bar is not None:
       bar.close()

@@ -35,7 +35,8 @@ class SimConfig:
     max_range_cells: static bound of the lidar range in cells; ``Params.r_max`` may be anything
       up to ``max_range_cells * res``.
     path_capacity: waypoints a plan may hold.
-    replan_every: motion steps between two batched planning rounds (planning is lockstep).
+    replan_every: a robot replans after this many motion steps even if its path is not done
+      (it always replans when its path is done).
     max_steps: the step budget of an episode (``timeout`` after it).
     planner: registry name of the planner.
     pose_noise: corrupt odometry and dead-reckon the estimate (SPEC §1); when False the estimate
@@ -45,7 +46,7 @@ class SimConfig:
     gain_radius_cells: ``R_e`` in cells as a static shape: the radius of the disc a path sweeps
       in Li's information gain (Eq 20), which fixes the shape of its kernels.
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
-    plan_chunk: robots per ``lax.map`` chunk when planning (DESIGN.md: small chunks beat one big vmap).
+    plan_chunk: robots planned together with ``vmap`` (:func:`jaxplore.sim.plan_where_needed`).
   """
 
   height: int

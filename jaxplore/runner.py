@@ -166,7 +166,7 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
     res: resample the world to this resolution (m/cell); coarser only for loaded maps.
     start: (x, y[, θ]) start pose for every robot, or None to sample per robot.
     max_steps: step budget per robot (``timeout`` after it); default from the world's size.
-    replan_every: motion steps between lockstep planning rounds.
+    replan_every: a robot replans after this many steps even if its path is not done.
     params: overrides of :class:`jaxplore.config.Params` fields (e.g. ``{"r_max": 10}``).
     planner_params: overrides of the planner's weights.
     pose_noise: corrupt odometry and integrate scans at the dead-reckoned estimate.

@@ -1,10 +1,13 @@
-"""The batched exploration engine: ``reset``, ``step``, planning epochs and rollouts.
+"""The batched exploration engine: ``reset``, ``step``, planning and rollouts.
 
-Single-robot pure functions, batched at the edge with ``vmap`` (STYLE.md practice 4). Time is
-organised in *planning epochs* (DESIGN.md, "Beware lax.cond under vmap"): every robot plans in
-lockstep once per epoch, then takes ``replan_every`` motion steps. A robot that finishes its path
-before the epoch ends waits for the next planning round; that wait is not mission time (``time``
-counts only steps in which the robot moved or turned; ``idle_steps`` counts the waits).
+Single-robot pure functions, batched at the edge with ``vmap`` (STYLE.md practice 4). A robot
+plans when it needs to: when its last step was idle (its path is done or blocked and it already
+faces its look-at cell, or it never planned) or when ``replan_every`` steps have passed since its
+last plan. Planning is by far the most expensive part of a step, and ``lax.cond`` under ``vmap``
+would run it for every robot (DESIGN.md), so :func:`plan_where_needed` loops over the robots
+that need a plan, one after another, and leaves the others untouched. Time spent waiting is not
+mission time (``time`` counts only steps in which the robot moved or turned; ``idle_steps``
+counts the others: one per arrival, plus any wait of a robot with nothing to do).
 
 One motion step (:func:`step`): drive toward the next waypoint (or turn to the look-at cell) →
 dead-reckon the estimate and propagate Σ (Li Eq 16–17) → scan the truth from the true pose →
@@ -107,6 +110,7 @@ class State:
     waypoints: i32[L, 2] current path; path_len: i32; path_idx: i32 next waypoint.
     goal, look_at, last_goal: i32[2] cells of the current and previous plan.
     steps: i32 motion steps taken (including idle ones); idle_steps: i32.
+    since_plan: i32 steps since the last plan; busy: bool the last step moved or turned.
     time: f32 mission time (s); distance: f32 (m).
     entropy: f32 map entropy Σ Ĥ(c) over the grid (nats). covered: f32 reachable cells known free.
     done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
@@ -127,6 +131,8 @@ class State:
   last_goal: chex.Array
   steps: chex.Array
   idle_steps: chex.Array
+  since_plan: chex.Array
+  busy: chex.Array
   time: chex.Array
   distance: chex.Array
   entropy: chex.Array
@@ -261,7 +267,8 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       blacklist=jnp.zeros((h, w), bool),
       waypoints=jnp.broadcast_to(cell, (L, 2)).astype(jnp.int32), path_len=jnp.int32(0),
       path_idx=jnp.int32(0), goal=zeros_i2, look_at=cell, last_goal=zeros_i2,
-      steps=jnp.int32(0), idle_steps=jnp.int32(0), time=jnp.float32(0), distance=jnp.float32(0),
+      steps=jnp.int32(0), idle_steps=jnp.int32(0), since_plan=jnp.int32(0), busy=jnp.bool_(False),
+      time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
       done=jnp.bool_(False), reason=jnp.int32(RUNNING))
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
@@ -317,6 +324,7 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   state = state.replace(key=key, pose=pose, pose_est=pose_est, cov=cov, path_len=path_len,
                         path_idx=path_idx, steps=state.steps + running.astype(jnp.int32),
                         idle_steps=state.idle_steps + (running & ~busy).astype(jnp.int32),
+                        since_plan=state.since_plan + 1, busy=busy,
                         time=state.time + jnp.where(busy, params.dt, 0.0),
                         distance=state.distance + delta_d)
   state = _sense(config, world, params, state, k_sense, busy)
@@ -374,7 +382,7 @@ def plan(config: SimConfig, world: World, params: Params, state: State) -> State
   exhausted = running & ~result.valid
   install = running & result.valid
   return state.replace(
-      key=key, blacklist=blacklist,
+      key=key, blacklist=blacklist, since_plan=jnp.int32(0),
       waypoints=jnp.where(install, result.waypoints, state.waypoints),
       path_len=jnp.where(install, result.length, 0),
       path_idx=jnp.where(install, jnp.minimum(1, result.length), 0),
@@ -385,30 +393,55 @@ def plan(config: SimConfig, world: World, params: Params, state: State) -> State
       reason=jnp.where(exhausted, EXHAUSTED, state.reason))
 
 
-def _batched(fn, chunk):
-  """``vmap`` of a per-robot function, run as ``lax.map`` over chunks (DESIGN.md)."""
-  def run(*args):
-    return jax.lax.map(lambda a: fn(*a), args, batch_size=chunk)
-  return run
+def needs_plan(config: SimConfig, state: State):
+  """Whether a robot plans before its next step: it is running, and its last step was idle or
+  ``replan_every`` steps have passed since its last plan."""
+  return ~state.done & (~state.busy | (state.since_plan >= config.replan_every))
+
+
+def plan_where_needed(config: SimConfig, world: World, params: Params, state: State) -> State:
+  """:func:`plan` for the robots of a batch that need it (:func:`needs_plan`).
+
+  ``params`` and ``state`` carry a leading batch axis. The robots that plan are gathered in
+  chunks of ``config.plan_chunk``, planned with ``vmap`` (a chunk of 4 plans about twice as fast
+  per robot as one robot alone: the shortest-path sweeps vectorise across the chunk) and
+  scattered back in place; robots that do not plan cost nothing, where a batched ``lax.cond``
+  would run the planner for all of them. A last partial chunk is filled with repeats of a robot
+  that plans anyway (its copies compute and write the same result).
+  """
+  need = needs_plan(config, state)
+  batch = need.shape[0]
+  chunk = min(config.plan_chunk, batch)
+  order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
+  order = jnp.where(order < 0, order[0], order)
+  n_chunks = (jnp.sum(need.astype(jnp.int32)) + chunk - 1) // chunk
+  plan_chunk = jax.vmap(lambda p, s: plan(config, world, p, s))
+
+  def plan_robots(k, state):
+    robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
+    take = lambda tree: jax.tree.map(lambda x: x[robots], tree)
+    planned = plan_chunk(take(params), take(state))
+    return jax.tree.map(lambda x, new: x.at[robots].set(new), state, planned)
+
+  return jax.lax.fori_loop(0, n_chunks, plan_robots, state)
 
 
 def epoch(config: SimConfig, world: World, params: Params, state: State):
-  """One lockstep planning round for the whole batch, then ``replan_every`` motion steps.
+  """``replan_every`` motion steps of the whole batch, each preceded by the plans it needs.
 
   ``params`` and ``state`` carry a leading batch axis; ``world`` is shared.
   """
-  plan_one = lambda p, s: plan(config, world, p, s)
-  state = _batched(plan_one, config.plan_chunk)(params, state)
   step_batch = jax.vmap(lambda p, s: step(config, world, p, s))
 
   def body(s, _):
+    s = plan_where_needed(config, world, params, s)
     return step_batch(params, s)
 
   return jax.lax.scan(body, state, None, length=config.replan_every)
 
 
 def advance_unjitted(config: SimConfig, world: World, params: Params, state: State, n_epochs: int):
-  """``n_epochs`` planning rounds for a batch; records stacked as [n_epochs * replan_every, B]."""
+  """``n_epochs * replan_every`` steps for a batch; records stacked as [n_epochs * replan_every, B]."""
   def body(s, _):
     return epoch(config, world, params, s)
 
@@ -454,7 +487,8 @@ def rollout(config: SimConfig, world: World, params: Params, keys, start_poses=N
 
 
 __all__ = [
-    "World", "State", "Record", "make_world", "reset", "step", "plan", "epoch", "advance",
+    "World", "State", "Record", "make_world", "reset", "step", "plan", "needs_plan",
+    "plan_where_needed", "epoch", "advance",
     "reset_batch", "rollout", "broadcast_params", "REASONS", "RUNNING", "COMPLETE", "EXHAUSTED",
     "TIMEOUT",
 ]

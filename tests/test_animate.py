@@ -44,7 +44,7 @@ def test_replay_reproduces_the_recorded_trajectory(run_dir):
   assert [f["step"] for f in replay.frames] == list(range(0, 41, 5))
   first, last = replay.frames[0], replay.frames[-1]
   assert np.count_nonzero(last["logodds"]) > np.count_nonzero(first["logodds"])  # the map grew
-  # The path drawn at a frame is the plan made there: it starts at the robot's cell of that moment.
+  # The path drawn at a frame is the rest of the one being followed: it starts at the robot's cell.
   planned = 0
   for frame in replay.frames:
     for j in range(2):
