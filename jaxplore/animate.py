@@ -103,8 +103,12 @@ def parse_robots(robots, n_robots: int) -> tuple[int, ...]:
 
 def _robot_seeds(config: dict, episodes: pd.DataFrame):
   """One integer seed per robot of a ``run(robot_seeds=...)`` call, else None (keys split from
-  ``seed``). config.json keeps only ``seed``; the episodes' seed column holds either that seed on
-  every row or the robot seeds. (A wrong guess cannot pass unnoticed: the replay would not match.)"""
+  ``seed``). config.json records ``robot_seeds``; folders written before it did are read from
+  the episodes' seed column, which holds either ``seed`` on every row or the robot seeds (a wrong
+  guess cannot pass unnoticed: the replay would not match)."""
+  if "robot_seeds" in config:
+    seeds = config["robot_seeds"]
+    return None if seeds is None else [int(v) for v in seeds]
   if "seed" not in episodes:
     return None
   seeds = episodes.sort_values("robot")["seed"].to_numpy()

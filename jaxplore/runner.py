@@ -250,7 +250,7 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
   resolved = {
       "jaxplore_version": __version__, "jax_version": jax.__version__, "numpy_version": np.__version__,
       "python": platform.python_version(), "devices": [str(d) for d in jax.devices()],
-      "sharded_over": n_dev, "seed": seed, "robots": robots, "planner": planner, "preset": preset,
+      "sharded_over": n_dev, "seed": seed, "robot_seeds": robot_seeds, "robots": robots, "planner": planner, "preset": preset,
       "start": start_pose, "interrupted": interrupted,
       "world": {"name": grid.name, "shape": list(grid.shape), "res": grid.res, "origin": list(grid.origin),
                 "free_m2": grid.free_area,
