@@ -262,6 +262,8 @@ def main(argv=None):
   out = Path(args.out)
   out.mkdir(parents=True, exist_ok=True)
   prefix = "godoy2023_quick" if args.quick else "godoy2023"
+  parts = out / f"{prefix}_parts"
+  parts.mkdir(exist_ok=True)
   grids = {label: load_grid(label) for label in args.worlds}
   expected, upper = expected_seconds(grids, args)
   print(f"{len(grids)} worlds x {len(args.methods)} methods x {args.robots} robots; expected duration "
@@ -273,12 +275,22 @@ def main(argv=None):
   for label, grid in grids.items():
     _, preset, _ = WORLDS[label]
     for method in args.methods:
+      # Each (world, method) batch is saved when done and reused by a later invocation with the
+      # same settings: the full table can be built in several sittings.
+      part = parts / f"{label}_{method}_r{args.robots}_m{args.max_steps or 'auto'}_{args.weights}.parquet"
+      if part.exists():
+        episodes.append(pd.read_parquet(part))
+        print(f"{label:14s} {method:17s} reused {part.name}", flush=True)
+        continue
       t0 = time.perf_counter()
       planner, weights = planner_weights(method, grid.res, args.weights)
       result = jaxplore.run(world=grid, planner=planner, robots=args.robots, seed=0, preset=preset,
                             max_steps=args.max_steps, progress=False, quiet=True, planner_params=weights,
                             robot_seeds=list(range(args.robots)), devices=args.devices)
-      episodes.append(result.episodes.assign(world=label, planner=method))
+      mine = result.episodes.assign(world=label, planner=method)
+      mine.to_parquet(part.with_name(part.name + ".tmp"), index=False)
+      os.replace(part.with_name(part.name + ".tmp"), part)
+      episodes.append(mine)
       timing = dict(world=label, planner=method, wall_s=time.perf_counter() - t0, **result.timing)
       timings.append(timing)
       reasons = result.episodes.reason.value_counts().to_dict()

@@ -115,6 +115,30 @@ def main(argv=None):
   fig.tight_layout()
   fig.savefig(RESULTS / "li2020_figure7.png", dpi=110)
 
+  # Where the robots went: seed 0 of each planner over the truth (Li's Figure 6 layout).
+  from jaxplore.maps import load_world
+  fig, axes = plt.subplots(len(PLANNERS), len(worlds), figsize=(4.2 * len(worlds), 3.6 * len(PLANNERS)),
+                           squeeze=False)
+  for col, world in enumerate(worlds):
+    spec, res = WORLDS[world]
+    grid = load_world(spec, res)
+    extent = (grid.origin[0], grid.origin[0] + grid.shape[1] * grid.res,
+              grid.origin[1], grid.origin[1] + grid.shape[0] * grid.res)
+    for row, planner in enumerate(PLANNERS):
+      ax = axes[row][col]
+      ax.imshow(grid.occupied, origin="lower", cmap="Greys", extent=extent, interpolation="nearest")
+      c = curves[(curves.world == world) & (curves.planner == planner) & (curves.robot == 0)]
+      e = episodes[(episodes.world == world) & (episodes.planner == planner) & (episodes.robot == 0)]
+      ax.plot(c.x, c.y, lw=0.7, color="tab:blue")
+      if len(e):
+        ax.set_title(f"{world}, {planner}: {float(e.distance_m.iloc[0]):.0f} m, "
+                     f"cov {float(e.coverage.iloc[0]):.2f}", fontsize=9)
+      ax.set_xticks([])
+      ax.set_yticks([])
+  fig.suptitle("Trajectory of seed 0 (li2020 preset: 15 m, 190° lidar)")
+  fig.tight_layout()
+  fig.savefig(RESULTS / "li2020_trajectories.png", dpi=90)
+
   header = (f"Li et al. 2020 Table 1 layout, {args.seeds} seeds per cell, preset li2020, "
             f"command: python experiments/li2020_table1.py {' '.join(argv or sys.argv[1:])}\n"
             f"total wall time {time.perf_counter() - started:.0f} s\n\n")
