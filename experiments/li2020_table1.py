@@ -32,6 +32,8 @@ WORLDS = {
     "mit_killian": (str(SHARED / "mit_killian.yaml"), 0.5),
 }
 PLANNERS = ("li2020", "nearest_frontier")
+# Extra rows (--variants): label -> (planner, planner weights).
+VARIANTS = {"li2020_per_metre": ("li2020", {"select": 1.0})}
 COLUMNS = [("entropy_reduction", "entropy reduction (nats)"), ("distance_m", "distance (m)"),
            ("E_r", "E_r (nats/m)"), ("Std_E_r", "Std(E_r) (nats/m)"), ("coverage_m2", "coverage (m²)"),
            ("coverage", "coverage (fraction)"), ("time_s", "time (s)")]
@@ -44,6 +46,7 @@ def main(argv=None):
   parser.add_argument("--max-steps", type=int, default=None)
   parser.add_argument("--devices", type=int, default=2)
   parser.add_argument("--quick", action="store_true")
+  parser.add_argument("--variants", default="", help=f"extra rows, comma separated: {', '.join(VARIANTS)}")
   parser.add_argument("--out", default=str(RESULTS / "li2020_table1"))
   args = parser.parse_args(argv)
   if args.quick:
@@ -61,11 +64,15 @@ def main(argv=None):
 
   out = Path(args.out)
   out.mkdir(parents=True, exist_ok=True)
+  labels = PLANNERS + tuple(v for v in args.variants.split(",") if v)
+  unknown = set(labels) - set(PLANNERS) - set(VARIANTS)
+  if unknown:
+    parser.error(f"unknown variant(s) {sorted(unknown)}; choose from {', '.join(VARIANTS)}")
   episodes, curves = [], []
   started = time.perf_counter()
   for world in args.worlds.split(","):
     spec, res = WORLDS[world]
-    for planner in PLANNERS:
+    for planner in labels:
       # Each (world, planner) pair is saved as soon as it is done and reused by a later
       # invocation with the same settings, so a long table can be built in several sittings.
       tag = f"{world}_{planner}_s{args.seeds}_m{args.max_steps or 'auto'}"
@@ -76,10 +83,12 @@ def main(argv=None):
         print(f"{world:12s} {planner:17s} reused {part_e.name}", flush=True)
         continue
       t0 = time.perf_counter()
-      result = jaxplore.run(world=spec, planner=planner, robots=args.seeds, seed=0, preset="li2020",
+      name, weights = VARIANTS.get(planner, (planner, None))
+      result = jaxplore.run(world=spec, planner=name, robots=args.seeds, seed=0, preset="li2020",
                             res=res, max_steps=args.max_steps, progress=False, quiet=True,
-                            robot_seeds=list(range(args.seeds)), devices=args.devices)
-      e = result.episodes.assign(world=world, wall_s=time.perf_counter() - t0)
+                            planner_params=weights, robot_seeds=list(range(args.seeds)),
+                            devices=args.devices)
+      e = result.episodes.assign(world=world, planner=planner, wall_s=time.perf_counter() - t0)
       c = result.curves.assign(world=world, planner=planner)
       for frame, path in ((e, part_e), (c, part_c)):
         frame.to_parquet(path.with_name(path.name + ".tmp"), index=False)
@@ -104,7 +113,7 @@ def main(argv=None):
   worlds = list(dict.fromkeys(episodes.world))
   fig, axes = plt.subplots(1, len(worlds), figsize=(4.2 * len(worlds), 3.6), squeeze=False)
   for ax, world in zip(axes[0], worlds):
-    for planner in PLANNERS:
+    for planner in labels:
       c = curves[(curves.world == world) & (curves.planner == planner)]
       plot.spread(ax, c, "distance", "entropy", label=planner)
     ax.set_title(world)
@@ -113,18 +122,18 @@ def main(argv=None):
   axes[0][-1].legend()
   fig.suptitle("Figure 7: map entropy vs distance (mean, 10–90 % band over seeds)")
   fig.tight_layout()
-  fig.savefig(RESULTS / "li2020_figure7.png", dpi=110)
+  fig.savefig(out.parent / "li2020_figure7.png", dpi=110)
 
   # Where the robots went: seed 0 of each planner over the truth (Li's Figure 6 layout).
   from jaxplore.maps import load_world
-  fig, axes = plt.subplots(len(PLANNERS), len(worlds), figsize=(4.2 * len(worlds), 3.6 * len(PLANNERS)),
+  fig, axes = plt.subplots(len(labels), len(worlds), figsize=(4.2 * len(worlds), 3.6 * len(labels)),
                            squeeze=False)
   for col, world in enumerate(worlds):
     spec, res = WORLDS[world]
     grid = load_world(spec, res)
     extent = (grid.origin[0], grid.origin[0] + grid.shape[1] * grid.res,
               grid.origin[1], grid.origin[1] + grid.shape[0] * grid.res)
-    for row, planner in enumerate(PLANNERS):
+    for row, planner in enumerate(labels):
       ax = axes[row][col]
       ax.imshow(grid.occupied, origin="lower", cmap="Greys", extent=extent, interpolation="nearest")
       c = curves[(curves.world == world) & (curves.planner == planner) & (curves.robot == 0)]
@@ -137,12 +146,12 @@ def main(argv=None):
       ax.set_yticks([])
   fig.suptitle("Trajectory of seed 0 (li2020 preset: 15 m, 190° lidar)")
   fig.tight_layout()
-  fig.savefig(RESULTS / "li2020_trajectories.png", dpi=90)
+  fig.savefig(out.parent / "li2020_trajectories.png", dpi=90)
 
   header = (f"Li et al. 2020 Table 1 layout, {args.seeds} seeds per cell, preset li2020, "
             f"command: python experiments/li2020_table1.py {' '.join(argv or sys.argv[1:])}\n"
             f"total wall time {time.perf_counter() - started:.0f} s\n\n")
-  (RESULTS / "li2020_table1.md").write_text(header + table + "\n")
+  (out.parent / f"{out.name}.md").write_text(header + table + "\n")
   print(table)
 
 
