@@ -42,7 +42,8 @@ class World:
     occupied: bool[H, W] truth (outside the grid counts as occupied).
     truth_framed: bool[(H + 2) * (W + 2)] the truth with an occupied border, flat (for the lidar).
     reachable: bool[H, W] free cells 4-connected to the start area; coverage is measured on it.
-    start_ok: bool[H, W] reachable cells with clearance > r_robot (where random starts are drawn).
+    start_ok: bool[H, W] where random starts are drawn: the largest 8-connected component of the
+      reachable cells with clearance > r_robot.
     n_reachable: f32 number of reachable cells.
     origin: f32[2] metres of the lower-left corner of cell (0, 0).
   """
@@ -89,6 +90,13 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
     sizes = ndimage.sum_labels(free, labels, index=np.arange(1, count + 1))
     reachable = labels == (1 + int(np.argmax(sizes)))
   start_ok = reachable & (clearance > radius)
+  if start_xy is None and start_ok.any():
+    # Random starts only where the robot can reach most of the map: the largest 8-connected
+    # component of the cells it fits in (a closet behind a door narrower than the robot is free
+    # and reachable for coverage, but a robot started there could never leave it).
+    fits, n_fits = ndimage.label(start_ok, structure=np.ones((3, 3), bool))
+    fit_sizes = ndimage.sum_labels(start_ok, fits, index=np.arange(1, n_fits + 1))
+    start_ok = fits == (1 + int(np.argmax(fit_sizes)))
   if not start_ok.any():
     raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius {r_robot} m")
   return World(occupied=jnp.asarray(grid.occupied),

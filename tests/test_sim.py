@@ -182,3 +182,18 @@ def test_robot_inside_newly_inflated_walls_can_drive_out(rooms):
   clear = np.asarray(view.free & ~view.inflated)
   reached = np.isfinite(np.asarray(sp.dist)) & clear
   assert reached.sum() > 0.9 * clear.sum()  # everything clear of walls is reachable from inside
+
+
+def test_random_starts_avoid_a_closet_behind_a_door_narrower_than_the_robot():
+  # A 1-cell door in a wall at column 40: the closet beyond is free and reachable (coverage
+  # counts it), but a 0.2 m robot at 0.1 m cells cannot pass the door, so no start lands there.
+  grid = box_world(40, 60, walls=((0, 20, 40, 41), (21, 40, 40, 41)))
+  world = sim.make_world(grid, 0.2)
+  reachable, start_ok = np.asarray(world.reachable), np.asarray(world.start_ok)
+  assert reachable[:, 41:59].any()
+  assert start_ok[:, :40].any() and not start_ok[:, 41:].any()
+  params = make_params("li2020", res=grid.res)
+  config = config_for(grid.shape, grid.res, params, max_steps=8)
+  keys = jax.random.split(jax.random.PRNGKey(0), 64)
+  state = sim.reset_batch(config, world, sim.broadcast_params(params, 64), keys)
+  assert np.all(np.asarray(state.pose[:, 0]) < 4.0)  # every start west of the wall (x < 4 m)
