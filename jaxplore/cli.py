@@ -25,6 +25,40 @@ def _key_values(items, what):
   return out
 
 
+def _parameter_flags(extra, planner):
+  """``--NAME VALUE`` / ``--NAME=VALUE`` for any simulator parameter or weight of ``planner``
+  (e.g. ``--alpha 1.5 --k1 0.2``): (params, planner_params). Anything else is an error."""
+  from jaxplore.config import PARAM_FIELDS, ConfigError
+  from jaxplore.planners import get_planner
+  weights = set(get_planner(planner).defaults)
+  params, planner_params = {}, {}
+  i = 0
+  while i < len(extra):
+    token = extra[i]
+    if not token.startswith("--") or len(token) < 3:
+      raise ConfigError(f"unrecognized argument {token!r}")
+    name, eq, value = token[2:].partition("=")
+    if not eq:
+      if i + 1 >= len(extra):
+        raise ConfigError(f"{token} needs a value")
+      value, i = extra[i + 1], i + 1
+    i += 1
+    name = name.replace("-", "_")
+    if name in PARAM_FIELDS:
+      target = params
+    elif name in weights:
+      target = planner_params
+    else:
+      raise ConfigError(f"unrecognized argument --{name}: not an option, a simulator "
+                       f"parameter ({', '.join(PARAM_FIELDS)}) nor a weight of planner {planner!r} "
+                       f"({', '.join(sorted(weights)) or 'none'})")
+    try:
+      target[name] = float(value)
+    except ValueError:
+      raise ConfigError(f"--{name}: {value!r} is not a number") from None
+  return params, planner_params
+
+
 def _set_devices(n):
   n = n or os.cpu_count() or 1
   flags = os.environ.get("XLA_FLAGS", "")
@@ -96,7 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--start", default=None, help="x,y[,theta] start for every robot (default: random)")
   run.add_argument("--max-steps", type=int, default=None)
   run.add_argument("--replan-every", type=int, default=None)
-  run.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a parameter")
+  run.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override a parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 --k1 0.2)")
   run.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
                    help="override a planner weight")
   run.add_argument("--pose-noise", action="store_true", help="noisy odometry, drifting estimate")
@@ -165,17 +200,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-  args = build_parser().parse_args(argv)
+  parser = build_parser()
+  args, extra = parser.parse_known_args(argv)
+  if extra and args.command != "run":
+    parser.error(f"unrecognized arguments: {' '.join(extra)}")
   if args.command == "run":
     _set_devices(args.devices)
     from jaxplore.config import ConfigError
     from jaxplore.maps import MapError
     from jaxplore.runner import run
     try:
+      params, planner_params = _parameter_flags(extra, args.planner)
+      params.update(_key_values(args.set, "--set"))
+      planner_params.update(_key_values(args.planner_set, "--planner-set"))
       result = run(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
                    preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
-                   replan_every=args.replan_every, params=_key_values(args.set, "--set"),
-                   planner_params=_key_values(args.planner_set, "--planner-set"),
+                   replan_every=args.replan_every, params=params, planner_params=planner_params,
                    pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
                    devices=args.devices)
     except (ConfigError, MapError) as err:

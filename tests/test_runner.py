@@ -132,3 +132,23 @@ def test_sweep_refuses_unknown_names_and_bad_weights():
     sweep({"gamma": [1.0]}, seeds=1, world="lab", planner="li2020", max_steps=10, progress=False)
   with pytest.raises(ConfigError, match="k1 < k2"):
     sweep({"k1": [0.9]}, seeds=1, world="lab", planner="li2020", max_steps=10, progress=False)
+
+
+def test_cli_takes_parameters_as_flags(tmp_path, capsys):
+  from jaxplore import cli
+  from conftest import box_world
+  from jaxplore.maps import save_map
+  yaml_path = tmp_path / "box.yaml"
+  save_map(box_world(30, 40), yaml_path)
+  out = tmp_path / "run"
+  code = cli.main(["run", "--world", str(yaml_path), "--planner", "li2020", "--robots", "1",
+                   "--max-steps", "8", "--alpha", "1.0", "--k1=0.1", "--r-max", "2.5", "--out", str(out),
+                   "--no-progress"])
+  assert code == 0
+  config = json.loads((out / "config.json").read_text())
+  assert config["params"]["alpha"] == 1.0 and config["params"]["r_max"] == 2.5
+  assert abs(config["planner_params"]["k1"] - 0.1) < 1e-6
+  assert cli.main(["run", "--world", str(yaml_path), "--planner", "nearest_frontier", "--k1", "0.1"]) == 2
+  assert "not an option, a simulator parameter" in capsys.readouterr().err
+  assert cli.main(["run", "--world", str(yaml_path), "--alpha", "fast"]) == 2
+  assert "'fast' is not a number" in capsys.readouterr().err
