@@ -28,7 +28,7 @@ def main(argv=None):
   import dataclasses
 
   import jax
-import jax.numpy as jnp
+  import jax.numpy as jnp
   import numpy as np
   from jax.sharding import Mesh, PartitionSpec as P
 
