@@ -66,12 +66,27 @@ def _set_devices(n):
     os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
 
 
+def _reporting_errors(compute):
+  """``(compute(), 0)``; a bad setting or map prints ``jaxplore: error: ...`` and gives exit code 2,
+  Ctrl-C (results already written are kept) gives 130."""
+  from jaxplore.config import ConfigError
+  from jaxplore.maps import MapError
+  try:
+    return compute(), 0
+  except (ConfigError, MapError) as err:
+    print(f"jaxplore: error: {err}", file=sys.stderr)
+    return None, 2
+  except KeyboardInterrupt as err:
+    print(f"jaxplore: {err}", file=sys.stderr)
+    return None, 130
+
+
 def _sweep(args) -> int:
   """``jaxplore sweep``: flags -> :func:`jaxplore.sweeps.sweep` (None = from --config or default)."""
   from jaxplore.config import ConfigError
-  from jaxplore.maps import MapError
   from jaxplore import sweeps
-  try:
+
+  def compute():
     devices = args.devices
     if devices is None and args.config is not None:
       devices = sweeps.load_config(args.config).get("devices")
@@ -92,7 +107,7 @@ def _sweep(args) -> int:
       name, spec = item.split("=", 1)
       random = dict(random or {}, **{name.strip(): sweeps.parse_random_spec(spec)})
     one = lambda names: None if names is None else (names[0] if len(names) == 1 else names)
-    result = sweeps.sweep(
+    return sweeps.sweep(
         grid=grid, seeds=args.seeds, world=one(args.world), planner=one(args.planner), out=args.out,
         quiet=args.quiet, random=random, samples=args.samples, random_seed=args.random_seed,
         chunk_size=args.chunk_size, resume=args.resume, config=args.config,
@@ -101,12 +116,10 @@ def _sweep(args) -> int:
         params=_key_values(args.set, "--set") or None,
         planner_params=_key_values(args.planner_set, "--planner-set") or None,
         pose_noise=args.pose_noise)
-  except (ConfigError, MapError) as err:
-    print(f"jaxplore: error: {err}", file=sys.stderr)
-    return 2
-  except KeyboardInterrupt as err:
-    print(f"jaxplore: {err}", file=sys.stderr)
-    return 130
+
+  result, code = _reporting_errors(compute)
+  if code:
+    return code
   t = result.timing
   print(f"{t['robot_episodes']} robot-episodes ({t['chunks_run']} of {t['chunks']} chunks run here, "
         f"{t['chunks_skipped']} already done); compile {t['compile_s']:.1f} s ({t['compiles']} "
@@ -206,24 +219,21 @@ def main(argv=None) -> int:
     parser.error(f"unrecognized arguments: {' '.join(extra)}")
   if args.command == "run":
     _set_devices(args.devices)
-    from jaxplore.config import ConfigError
-    from jaxplore.maps import MapError
     from jaxplore.runner import run
-    try:
+
+    def compute():
       params, planner_params = _parameter_flags(extra, args.planner)
       params.update(_key_values(args.set, "--set"))
       planner_params.update(_key_values(args.planner_set, "--planner-set"))
-      result = run(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
-                   preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
-                   replan_every=args.replan_every, params=params, planner_params=planner_params,
-                   pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
-                   devices=args.devices)
-    except (ConfigError, MapError) as err:
-      print(f"jaxplore: error: {err}", file=sys.stderr)
-      return 2
-    except KeyboardInterrupt as err:
-      print(f"jaxplore: {err}", file=sys.stderr)
-      return 130
+      return run(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
+                 preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
+                 replan_every=args.replan_every, params=params, planner_params=planner_params,
+                 pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
+                 devices=args.devices)
+
+    result, code = _reporting_errors(compute)
+    if code:
+      return code
     t = result.timing
     print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
           f"{t['robot_steps_per_s']:.0f} robot-steps/s")
