@@ -66,6 +66,9 @@ def _parse_args(argv=None):
   parser.add_argument("--lidar-batches", type=_int_list, default=None, help="default 1,64,256")
   parser.add_argument("--lidar-ref-scans", type=int, default=None,
                       help="scans timed with the reference per lidar batch (default 64)")
+  parser.add_argument("--compare-window", action="store_true",
+                      help="where the engine plans on a window around each robot (SimConfig.plan_window), "
+                           "also time it planning on the whole grid, side by side")
   parser.add_argument("--quick", action="store_true", help="tiny smoke version (< 1 minute)")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--out", default=str(HERE / "results" / "bench_engine.md"), help="markdown file")
@@ -92,6 +95,7 @@ if ARGS is not None and ARGS.devices > 1:
       os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={ARGS.devices}"
   )
 
+import dataclasses  # noqa: E402
 import datetime  # noqa: E402
 import platform  # noqa: E402
 import shlex  # noqa: E402
@@ -323,20 +327,37 @@ def report(args, rows, lidar_rows, load_at_start: str, wall_s: float) -> str:
       "190 beams, replanning every 8 steps); `eb:*`: Explore-Bench blueprints with the `explore_bench` "
       "preset (3.5 m, 360 beams, replanning every step). Robot-steps count running robots only; "
       "`done` = robots finished at the end of the window. Compile time is apart from run time "
-      "(`-` = executable reused from an earlier world of the same shape).",
+      "(`-` = executable reused from an earlier world of the same shape). Plan window: the side "
+      "of the window around each robot that nearest frontier plans on first (`SimConfig.plan_window`, "
+      "picked from the sensor range; the whole grid is planned only when the window cannot "
+      "certify the nearest frontier); `off` = whole grid every time"
+      + (" (rows in italics: the same setting with the window off, for comparison; the summaries "
+         "below use the default rows only)." if any(not r["main"] for r in rows) else "."),
       "",
-      "| world | preset | H x W | robots | devices | compile s | run s | engine robot-steps/s "
+      "| world | preset | H x W | plan window | robots | devices | compile s | run s | engine robot-steps/s "
       "| reference robot-steps/s | engine / reference | done | coverage engine / ref (same robots) |",
-      "|---|---|---|---|---|---|---|---|---|---|---|---|",
+      "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
   ]
   for r in rows:
     compile_s = "-" if r["compile_s"] is None else f"{r['compile_s']:.1f}"
+    window = r["window"] or "off"
+    if not r["main"]:
+      window = f"*{window}*"
     lines.append(
-        f"| {r['world']} | {r['preset']} | {r['shape'][0]} x {r['shape'][1]} | {r['robots']} "
+        f"| {r['world']} | {r['preset']} | {r['shape'][0]} x {r['shape'][1]} | {window} | {r['robots']} "
         f"| {r['devices']} | {compile_s} | {r['run_s']:.2f} | {r['engine_rate']:.0f} "
         f"| {r['ref_rate']:.0f} | **{r['engine_rate'] / r['ref_rate']:.1f}x** | {r['done']}/{r['robots']} "
         f"| {r['coverage']:.3f} / {r['ref_coverage']:.3f} |")
 
+  compared = [r for r in rows if not r["main"]]
+  if compared:
+    lines += ["", "Planning window on / off, same setting (engine robot-steps/s):", "",
+              "| world | robots | window | on | off | on / off |", "|---|---|---|---|---|---|"]
+    for off in compared:
+      on = next(r for r in rows if r["main"] and r["world"] == off["world"] and r["robots"] == off["robots"])
+      lines.append(f"| {off['world']} | {off['robots']} | {on['window']} | {on['engine_rate']:.0f} "
+                   f"| {off['engine_rate']:.0f} | {on['engine_rate'] / off['engine_rate']:.2f}x |")
+  rows = [r for r in rows if r["main"]]
   lines += ["", "Engine / reference by batch size (geometric mean over worlds):", "",
             "| robots | geometric mean | min | max |", "|---|---|---|---|"]
   for robots in sorted({r["robots"] for r in rows}):
@@ -388,15 +409,19 @@ def main(args):
     starts = sample_starts(world, grid, max(args.robots + [args.ref_robots]), args.seed)
     ref = time_reference(grid, config, params, starts[: args.ref_robots], steps)
     print(f"{name}: reference {ref['ref_rate']:.1f} robot-steps/s over {ref['ref_steps']} steps", flush=True)
+    windows = [config.plan_window] + ([0] if args.compare_window and sim.uses_window(config) else [])
     for robots in args.robots:
-      engine = time_engine(compiled_cache, config, params, world, starts[:robots], steps,
-                           args.chunk_steps, args.devices, args.seed, min(robots, args.ref_robots))
-      row = dict(world=name, preset=preset, shape=grid.shape, **engine, **ref)
-      rows.append(row)
-      compile_text = "cached" if row["compile_s"] is None else f"{row['compile_s']:.1f} s"
-      print(f"  {robots:>4} robots: compile {compile_text}, engine {row['engine_rate']:.0f} robot-steps/s "
-            f"({row['engine_rate'] / row['ref_rate']:.1f}x the reference), done {row['done']}/{robots}",
-            flush=True)
+      for window in windows:
+        engine = time_engine(compiled_cache, dataclasses.replace(config, plan_window=window), params,
+                             world, starts[:robots], steps, args.chunk_steps, args.devices, args.seed,
+                             min(robots, args.ref_robots))
+        row = dict(world=name, preset=preset, shape=grid.shape, window=window,
+                   main=window == config.plan_window, **engine, **ref)
+        rows.append(row)
+        compile_text = "cached" if row["compile_s"] is None else f"{row['compile_s']:.1f} s"
+        print(f"  {robots:>4} robots, plan window {window or 'off'}: compile {compile_text}, engine "
+              f"{row['engine_rate']:.0f} robot-steps/s ({row['engine_rate'] / row['ref_rate']:.1f}x the "
+              f"reference), done {row['done']}/{robots}", flush=True)
   print("lidar:", flush=True)
   lidar_rows = lidar_bench(args.lidar_batches, args.lidar_ref_scans, args.seed)
   text = report(args, rows, lidar_rows, load_at_start, time.perf_counter() - t_start)

@@ -47,6 +47,10 @@ class SimConfig:
       in Li's information gain (Eq 20), which fixes the shape of its kernels.
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
     plan_chunk: robots planned together with ``vmap`` (:func:`jaxplore.sim.plan_where_needed`).
+    plan_window: side in cells of the square window around the robot that a ``windowed``
+      planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
+      window cannot certify the answer. 0 = always the whole grid. :func:`config_for` picks it
+      from the sensor range (:func:`auto_plan_window`).
   """
 
   height: int
@@ -64,6 +68,7 @@ class SimConfig:
   gain_radius_cells: float = 7.5
   dijkstra_max_sweeps: int = 512
   plan_chunk: int = 4
+  plan_window: int = 0
 
   def __post_init__(self):
     for name in ("height", "width", "n_beams", "max_range_cells", "path_capacity", "replan_every",
@@ -73,6 +78,8 @@ class SimConfig:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
     if self.max_inflation_cells < 0:
       raise ConfigError(f"max_inflation_cells must be >= 0, got {self.max_inflation_cells}")
+    if not isinstance(self.plan_window, (int, np.integer)) or self.plan_window < 0:
+      raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
     if not (math.isfinite(self.res) and self.res > 0):
       raise ConfigError(f"res must be a positive number of metres, got {self.res!r}")
 
@@ -240,6 +247,20 @@ def validate_params(params: Params, config: SimConfig) -> None:
     check(f"planner.{name}", value, lambda a: np.ones_like(a, bool), "finite")
 
 
+def window_margin(max_inflation_cells: int) -> int:
+  """Cells along a window's inner edges whose belief masks may differ from the whole grid's
+  (inflation, the escape zone and frontier tests look up to this far); planning avoids them."""
+  return 2 * max_inflation_cells + 3
+
+
+def auto_plan_window(height: int, width: int, max_range_cells: int, max_inflation_cells: int) -> int:
+  """A planning window wide enough to hold the nearest frontier while a robot explores (a
+  sensor range on each side of it, plus the margin), rounded up to 32 cells; 0 (off) when it
+  would not have at most a quarter of the grid's cells."""
+  side = 32 * math.ceil((2 * max_range_cells + 2 * window_margin(max_inflation_cells) + 8) / 32)
+  return side if 4 * side * side <= height * width and side < min(height, width) else 0
+
+
 def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
                **overrides) -> SimConfig:
   """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``."""
@@ -257,4 +278,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
     kwargs["n_beams"] = PRESETS[preset].n_beams
     kwargs["replan_every"] = PRESETS[preset].replan_every
   kwargs.update(overrides)
+  if "plan_window" not in overrides:
+    kwargs["plan_window"] = auto_plan_window(kwargs["height"], kwargs["width"],
+                                             kwargs["max_range_cells"], kwargs["max_inflation_cells"])
   return SimConfig(**kwargs)

@@ -17,6 +17,7 @@ the *estimated* pose → update the entropy map within ``R_u`` (Li Eq 3) → met
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import chex
@@ -367,12 +368,65 @@ def robot_view(config: SimConfig, world: World, state: State) -> planners_base.R
                                  cov=state.cov)
 
 
-def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
+def _window_origin(config: SimConfig, cell, side: int):
+  """Top-left cell of the ``side``-wide window centred on ``cell``, shifted to lie in the grid."""
+  return jnp.stack([jnp.clip(cell[0] - side // 2, 0, config.height - side),
+                    jnp.clip(cell[1] - side // 2, 0, config.width - side)]).astype(jnp.int32)
+
+
+def _propose_in_window(config: SimConfig, params: Params, state: State, robot, side: int, key):
+  """A windowed planner's plan made on the ``side`` x ``side`` window around the robot.
+
+  Returns (plan in grid coordinates, certified). Cells within :func:`config.window_margin` of an
+  edge of the window that is not an edge of the grid may see masks that differ from the whole
+  grid's, so they are blocked. Every path from the robot out of the remaining cells costs at
+  least ``edge`` cells (the Chebyshev distance to the first blocked cell); a plan that costs less
+  is therefore the whole grid's nearest candidate, with a shortest path: it is *certified*.
+  Otherwise (or when the window holds no candidate) the caller plans on the whole grid.
+  """
+  from jaxplore.config import window_margin
+
+  spec = planners_base.get_planner(config.planner)
+  local = dataclasses.replace(config, height=side, width=side, plan_window=0)
+  origin = _window_origin(config, robot.cell, side)
+  crop = lambda grid: jax.lax.dynamic_slice(grid, (origin[0], origin[1]), (side, side))
+  window_state = state.replace(logodds=crop(state.logodds), entropy_map=crop(state.entropy_map),
+                               blacklist=crop(state.blacklist))
+  cell = robot.cell - origin
+  view = belief_view(local, params, window_state, cell)
+
+  margin = window_margin(config.max_inflation_cells)
+  rows = jnp.arange(side)[:, None]
+  cols = jnp.arange(side)[None, :]
+  inner = (origin[0] > 0, origin[0] + side < config.height, origin[1] > 0, origin[1] + side < config.width)
+  blocked = ((inner[0] & (rows < margin)) | (inner[1] & (rows >= side - margin)) |
+             (inner[2] & (cols < margin)) | (inner[3] & (cols >= side - margin)))
+  view = view.replace(free=view.free & ~blocked, traversable=view.traversable & ~blocked,
+                      frontier=view.frontier & ~blocked)
+  far = jnp.int32(config.height + config.width)
+  edge = jnp.min(jnp.stack([
+      jnp.where(inner[0], cell[0] - (margin - 1), far), jnp.where(inner[1], side - margin - cell[0], far),
+      jnp.where(inner[2], cell[1] - (margin - 1), far), jnp.where(inner[3], side - margin - cell[1], far)]))
+
+  result = spec.plan(local, view, robot.replace(cell=cell), params, key)
+  certified = result.valid & (result.cost < edge.astype(jnp.float32) * config.res)
+  to_grid = lambda cells: jnp.where(cells >= 0, cells + origin[None, :], cells)
+  result = result.replace(waypoints=to_grid(result.waypoints), goal=result.goal + origin,
+                          look_at=result.look_at + origin)
+  return result, certified
+
+
+def plan(config: SimConfig, world: World, params: Params, state: State, window: int = 0):
   """One robot's planning round: ask the planner, install the path, handle no-op goals.
 
   A robot whose planner finds no candidate ends ``exhausted`` (unless already complete). A goal
   chosen twice in a row while the robot already stands on it cannot be resolved from here and
   is blacklisted, so no robot waits on it forever.
+
+  Args:
+    window: static; 0 plans on the whole grid and returns the new state. A positive side asks
+      a ``windowed`` planner on that window around the robot (:func:`_propose_in_window`) and
+      returns ``(new state, certified)``; an uncertified answer must not be installed.
   """
   spec = planners_base.get_planner(config.planner)
   key, k_plan = jax.random.split(state.key)
@@ -384,12 +438,15 @@ def plan(config: SimConfig, world: World, params: Params, state: State) -> State
         arrived, mode="drop", wrap_negative_indices=False)
   state = state.replace(blacklist=blacklist)
   robot = robot_view(config, world, state)
-  result = spec.plan(config, belief_view(config, params, state, robot.cell), robot, params, k_plan)
+  if window:
+    result, certified = _propose_in_window(config, params, state, robot, window, k_plan)
+  else:
+    result = spec.plan(config, belief_view(config, params, state, robot.cell), robot, params, k_plan)
   stuck = result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
   blacklist = blacklist.at[result.goal[0], result.goal[1]].max(stuck & running)
   exhausted = running & ~result.valid
   install = running & result.valid
-  return state.replace(
+  state = state.replace(
       key=key, blacklist=blacklist, since_plan=jnp.int32(0),
       waypoints=jnp.where(install, result.waypoints, state.waypoints),
       path_len=jnp.where(install, result.length, 0),
@@ -399,12 +456,46 @@ def plan(config: SimConfig, world: World, params: Params, state: State) -> State
       last_goal=jnp.where(install, result.goal, state.last_goal),
       done=state.done | exhausted,
       reason=jnp.where(exhausted, EXHAUSTED, state.reason))
+  return (state, certified) if window else state
 
 
 def needs_plan(config: SimConfig, state: State):
   """Whether a robot plans before its next step: it is running, and its last step was idle or
   ``replan_every`` steps have passed since its last plan."""
   return ~state.done & (~state.busy | (state.since_plan >= config.replan_every))
+
+
+def uses_window(config: SimConfig) -> bool:
+  """Whether planning tries a window first (a ``windowed`` planner and a window smaller than the grid)."""
+  return (planners_base.get_planner(config.planner).windowed and
+          0 < config.plan_window < min(config.height, config.width))
+
+
+def _plan_robots(config: SimConfig, world: World, params: Params, state: State, need, window: int):
+  """:func:`plan` for the robots with ``need`` set, ``plan_chunk`` at a time; returns the new
+  state and which robots got their plan (all of them without a window; with one, those whose
+  window plan was certified: the others keep their state)."""
+  batch = need.shape[0]
+  chunk = min(config.plan_chunk, batch)
+  order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
+  order = jnp.where(order < 0, order[0], order)
+  n_chunks = (jnp.sum(need.astype(jnp.int32)) + chunk - 1) // chunk
+  planned_fn = jax.vmap(lambda p, s: plan(config, world, p, s, window))
+
+  def plan_chunk(k, carry):
+    state, done = carry
+    robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
+    take = lambda tree: jax.tree.map(lambda x: x[robots], tree)
+    old = take(state)
+    if window:
+      new, ok = planned_fn(take(params), old)
+      new = jax.tree.map(lambda n, o: jnp.where(ok.reshape(ok.shape + (1,) * (n.ndim - 1)), n, o), new, old)
+    else:
+      new, ok = planned_fn(take(params), old), jnp.ones((chunk,), bool)
+    state = jax.tree.map(lambda x, n: x.at[robots].set(n), state, new)
+    return state, done.at[robots].set(ok)
+
+  return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))
 
 
 def plan_where_needed(config: SimConfig, world: World, params: Params, state: State) -> State:
@@ -416,22 +507,17 @@ def plan_where_needed(config: SimConfig, world: World, params: Params, state: St
   scattered back in place; robots that do not plan cost nothing, where a batched ``lax.cond``
   would run the planner for all of them. A last partial chunk is filled with repeats of a robot
   that plans anyway (its copies compute and write the same result).
+
+  With a planning window (:func:`uses_window`), every robot first plans on the window around
+  it, and only those whose answer the window cannot certify plan again on the whole grid: the
+  work follows the distance to the nearest candidate instead of the grid's size.
   """
   need = needs_plan(config, state)
-  batch = need.shape[0]
-  chunk = min(config.plan_chunk, batch)
-  order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
-  order = jnp.where(order < 0, order[0], order)
-  n_chunks = (jnp.sum(need.astype(jnp.int32)) + chunk - 1) // chunk
-  plan_chunk = jax.vmap(lambda p, s: plan(config, world, p, s))
-
-  def plan_robots(k, state):
-    robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
-    take = lambda tree: jax.tree.map(lambda x: x[robots], tree)
-    planned = plan_chunk(take(params), take(state))
-    return jax.tree.map(lambda x, new: x.at[robots].set(new), state, planned)
-
-  return jax.lax.fori_loop(0, n_chunks, plan_robots, state)
+  if uses_window(config):
+    state, certified = _plan_robots(config, world, params, state, need, config.plan_window)
+    need = need & ~certified
+  state, _ = _plan_robots(config, world, params, state, need, 0)
+  return state
 
 
 def epoch(config: SimConfig, world: World, params: Params, state: State):
@@ -496,7 +582,7 @@ def rollout(config: SimConfig, world: World, params: Params, keys, start_poses=N
 
 __all__ = [
     "World", "State", "Record", "make_world", "reset", "step", "plan", "needs_plan",
-    "plan_where_needed", "epoch", "advance",
+    "plan_where_needed", "uses_window", "epoch", "advance",
     "reset_batch", "rollout", "broadcast_params", "REASONS", "RUNNING", "COMPLETE", "EXHAUSTED",
     "TIMEOUT",
 ]

@@ -94,6 +94,10 @@ class PlannerSpec:
       the path to it (Ahmed's FD), so it is never chosen again.
     validate: optional host-side check of the resolved weights and config,
       ``validate(weights: dict[str, array], params, config) -> None``, raising ``ConfigError``.
+    windowed: the planner picks the candidate with the smallest path cost over unit node costs
+      (``Plan.cost`` in metres, each step costing at least its length), so a plan made on a
+      window around the robot is the whole grid's plan when its cost is below the distance to
+      the window's edge (:func:`jaxplore.sim.plan_where_needed` then skips the whole grid).
   """
 
   name: str
@@ -102,18 +106,20 @@ class PlannerSpec:
   summary: str
   blacklist_on_arrival: bool = False
   validate: Callable | None = None
+  windowed: bool = False
 
 
 _REGISTRY: dict[str, PlannerSpec] = {}
 
 
 def register(name: str, defaults: dict | None = None, summary: str = "",
-             blacklist_on_arrival: bool = False, validate: Callable | None = None):
+             blacklist_on_arrival: bool = False, validate: Callable | None = None,
+             windowed: bool = False):
   """Decorator adding a plan function to the registry under ``name``."""
 
   def wrap(fn):
     _REGISTRY[name] = PlannerSpec(name, fn, dict(defaults or {}), summary, blacklist_on_arrival,
-                                  validate)
+                                  validate, windowed)
     return fn
 
   return wrap

@@ -37,7 +37,8 @@ def plan_to(config, view: base.BeliefView, robot: base.RobotView, pred, goal, va
   return cells, length.astype(jnp.int32), look_at
 
 
-@base.register("nearest_frontier", summary="go to the frontier cell with the smallest path cost")
+@base.register("nearest_frontier", summary="go to the frontier cell with the smallest path cost",
+               windowed=True)
 def plan_nearest_frontier(config, view: base.BeliefView, robot: base.RobotView, params, key):
   node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
   dist, pred = reachable_paths(config, view, robot, node_cost)

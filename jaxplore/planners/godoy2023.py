@@ -278,7 +278,7 @@ def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -
 
 
 @base.register("fd", summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)",
-               blacklist_on_arrival=True)
+               blacklist_on_arrival=True, windowed=True)
 def plan_fd(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Nearest frontier that never returns to a reached frontier goal (Ahmed et al.'s FD).
 
