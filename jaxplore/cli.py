@@ -143,6 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--start", default=None, help="x,y[,theta] start for every robot (default: random)")
   run.add_argument("--max-steps", type=int, default=None)
   run.add_argument("--replan-every", type=int, default=None)
+  run.add_argument("--plan-window", type=int, default=None, metavar="CELLS",
+                   help="window nearest frontier plans on first (0: whole grid; default from the range)")
   run.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override a parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 --k1 0.2)")
   run.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
@@ -229,7 +231,7 @@ def main(argv=None) -> int:
                  preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
                  replan_every=args.replan_every, params=params, planner_params=planner_params,
                  pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
-                 devices=args.devices)
+                 devices=args.devices, plan_window=args.plan_window)
 
     result, code = _reporting_errors(compute)
     if code:

@@ -128,7 +128,7 @@ def default_chunk_epochs(config: SimConfig) -> int:
 
 def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, preset="li2020",
             res=None, start=None, max_steps=None, replan_every=None, params=None,
-            planner_params=None, pose_noise=False, path_capacity=None):
+            planner_params=None, pose_noise=False, path_capacity=None, plan_window=None):
   """Resolves and validates every setting (no compute). Returns (grid, config, params, start)."""
   if not isinstance(robots, (int, np.integer)) or robots < 1:
     raise ConfigError(f"robots must be a positive integer, got {robots!r}")
@@ -143,6 +143,8 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
     overrides["replan_every"] = int(replan_every)
   if path_capacity is not None:
     overrides["path_capacity"] = int(path_capacity)
+  if plan_window is not None:
+    overrides["plan_window"] = int(plan_window)
   steps = int(max_steps) if max_steps is not None else default_max_steps(grid, p)
   config = config_for(grid.shape, grid.res, p, preset=preset, max_steps=steps, **overrides)
   validate_params(p, config)
@@ -154,7 +156,8 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
 def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="li2020", res=None,
         start=None, max_steps=None, replan_every=None, params=None, planner_params=None,
         pose_noise=False, path_capacity=None, out=None, progress=True, devices=None,
-        chunk_epochs=None, rate_interval=1.0, quiet=False, robot_seeds=None) -> RunResult:
+        chunk_epochs=None, rate_interval=1.0, quiet=False, robot_seeds=None,
+        plan_window=None) -> RunResult:
   """Runs ``robots`` robots exploring ``world`` with ``planner`` and returns/writes the results.
 
   Args:
@@ -177,10 +180,12 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
     robot_seeds: optional list of one integer seed per robot (its PRNG key is ``PRNGKey(s)``), so
       the same seed gives the same start in every setting of a sweep; default: ``robots`` keys
       split from ``seed``.
+    plan_window: side in cells of the window nearest frontier plans on first (0 = whole grid
+      always); default picked from the sensor range (``SimConfig.plan_window``).
   """
   grid, config, p, start_pose = prepare(world, planner, robots, seed, preset, res, start, max_steps,
                                         replan_every, params, planner_params, pose_noise,
-                                        path_capacity)
+                                        path_capacity, plan_window)
   need, have = estimate_bytes(config, robots), available_bytes()
   if need > 0.8 * have:
     raise ConfigError(f"{robots} robots on a {config.height}x{config.width} grid need about "

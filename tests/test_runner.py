@@ -70,6 +70,7 @@ def test_episode_metrics_follow_their_definitions(small_run):
     (dict(start="1,nan"), ConfigError, "start"),
     (dict(robots=0), ConfigError, "robots"),
     (dict(planner_params={"k9": 1.0}), ConfigError, "k9"),
+    (dict(plan_window=-8), ConfigError, "plan_window"),
 ])
 def test_bad_input_is_refused_before_compute(kwargs, error, match):
   settings = dict(SMALL, **kwargs)
