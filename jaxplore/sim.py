@@ -27,7 +27,7 @@ import numpy as np
 from scipy import ndimage
 
 from jaxplore import mapping, motion, sensor
-from jaxplore.config import ConfigError, Params, SimConfig
+from jaxplore.config import ConfigError, Params, SimConfig, window_margin
 from jaxplore.maps.grid import GridMap
 from jaxplore.planners import base as planners_base
 
@@ -377,15 +377,13 @@ def _window_origin(config: SimConfig, cell, side: int):
 def _propose_in_window(config: SimConfig, params: Params, state: State, robot, side: int, key):
   """A windowed planner's plan made on the ``side`` x ``side`` window around the robot.
 
-  Returns (plan in grid coordinates, certified). Cells within :func:`config.window_margin` of an
+  Returns (plan in grid coordinates, certified). Cells within :func:`window_margin` of an
   edge of the window that is not an edge of the grid may see masks that differ from the whole
   grid's, so they are blocked. Every path from the robot out of the remaining cells costs at
   least ``edge`` cells (the Chebyshev distance to the first blocked cell); a plan that costs less
   is therefore the whole grid's nearest candidate, with a shortest path: it is *certified*.
   Otherwise (or when the window holds no candidate) the caller plans on the whole grid.
   """
-  from jaxplore.config import window_margin
-
   spec = planners_base.get_planner(config.planner)
   local = dataclasses.replace(config, height=side, width=side, plan_window=0)
   origin = _window_origin(config, robot.cell, side)
