@@ -414,18 +414,21 @@ def _propose_in_window(config: SimConfig, params: Params, state: State, robot, s
   return result, certified
 
 
-def plan(config: SimConfig, world: World, params: Params, state: State, window: int = 0):
-  """One robot's planning round: ask the planner, install the path, handle no-op goals.
+def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
+  """One robot's planning round on the whole grid: ask the planner, install the path, handle
+  no-op goals.
 
   A robot whose planner finds no candidate ends ``exhausted`` (unless already complete). A goal
   chosen twice in a row while the robot already stands on it cannot be resolved from here and
   is blacklisted, so no robot waits on it forever.
-
-  Args:
-    window: static; 0 plans on the whole grid and returns the new state. A positive side asks
-      a ``windowed`` planner on that window around the robot (:func:`_propose_in_window`) and
-      returns ``(new state, certified)``; an uncertified answer must not be installed.
   """
+  return _plan_round(config, world, params, state, window=0)[0]
+
+
+def _plan_round(config: SimConfig, world: World, params: Params, state: State, window: int):
+  """:func:`plan` on the whole grid (``window`` = 0) or, for a ``windowed`` planner, on the
+  ``window`` cells around the robot (:func:`_propose_in_window`). Returns (new state, certified);
+  a state whose plan is not certified must not be kept (always certified on the whole grid)."""
   spec = planners_base.get_planner(config.planner)
   key, k_plan = jax.random.split(state.key)
   running = ~state.done
@@ -440,6 +443,7 @@ def plan(config: SimConfig, world: World, params: Params, state: State, window: 
     result, certified = _propose_in_window(config, params, state, robot, window, k_plan)
   else:
     result = spec.plan(config, belief_view(config, params, state, robot.cell), robot, params, k_plan)
+    certified = jnp.bool_(True)
   stuck = result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
   blacklist = blacklist.at[result.goal[0], result.goal[1]].max(stuck & running)
   exhausted = running & ~result.valid
@@ -454,7 +458,7 @@ def plan(config: SimConfig, world: World, params: Params, state: State, window: 
       last_goal=jnp.where(install, result.goal, state.last_goal),
       done=state.done | exhausted,
       reason=jnp.where(exhausted, EXHAUSTED, state.reason))
-  return (state, certified) if window else state
+  return state, certified
 
 
 def needs_plan(config: SimConfig, state: State):
@@ -478,20 +482,19 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
   order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
   order = jnp.where(order < 0, order[0], order)
   n_chunks = (jnp.sum(need.astype(jnp.int32)) + chunk - 1) // chunk
-  planned_fn = jax.vmap(lambda p, s: plan(config, world, p, s, window))
+  plan_chunk_fn = jax.vmap(lambda p, s: _plan_round(config, world, p, s, window))
 
   def plan_chunk(k, carry):
-    state, done = carry
+    state, planned = carry
     robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
     take = lambda tree: jax.tree.map(lambda x: x[robots], tree)
     old = take(state)
+    new, ok = plan_chunk_fn(take(params), old)
     if window:
-      new, ok = planned_fn(take(params), old)
-      new = jax.tree.map(lambda n, o: jnp.where(ok.reshape(ok.shape + (1,) * (n.ndim - 1)), n, o), new, old)
-    else:
-      new, ok = planned_fn(take(params), old), jnp.ones((chunk,), bool)
+      keep = lambda n, o: jnp.where(ok.reshape(ok.shape + (1,) * (n.ndim - 1)), n, o)
+      new = jax.tree.map(keep, new, old)
     state = jax.tree.map(lambda x, n: x.at[robots].set(n), state, new)
-    return state, done.at[robots].set(ok)
+    return state, planned.at[robots].set(ok)
 
   return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))
 
