@@ -27,8 +27,9 @@ WORLDS = {
     # default). intel and willow: both planners timed out at the default budget (76 % / 36-47 %
     # coverage), so they get ~3x and ~2x it. mit_killian: at 0.5 m the any-occupied resampling
     # closes its corridors (571 of 2,862 m² reachable), at 0.3 m 2,464 m² are reachable, but
-    # li2020 then costs ~0.2 s per robot-step (664 x 831 cells), so its budget is cut to 1,500
-    # steps (450 m): both planners stop at the same distance budget, unfinished.
+    # li2020 then costs ~0.06 s of wall time per robot-step on 2 cores (664 x 831 cells; ~85 min
+    # for 16 robots at the default 5,107 steps), so its budget is cut to 1,500 steps (450 m):
+    # both planners stop at the same distance budget, unfinished.
     "lab": ("lab", None, None),
     "building": ("building", None, None),
     "campus": ("campus", None, None),
