@@ -55,13 +55,18 @@ def test_beam_cells_match_fine_sampling_on_empty_grid(transform):
     assert set(reference) - ours <= marginal
 
 
+def _random_world(seed, h, w, density):
+  """(rng, occupied bool[h, w] with the given fraction of walls, the framed truth)."""
+  rng = np.random.default_rng(seed)
+  occupied = rng.random((h, w)) < density
+  return rng, occupied, sensor.frame_truth(jnp.asarray(occupied))
+
+
 @EAGER_AND_JIT
 def test_cast_range_and_hit_cell_match_reference_on_random_grids(transform):
-  rng = np.random.default_rng(1)
   h, w = 30, 30
-  occupied = rng.random((h, w)) < 0.08
+  rng, occupied, truth = _random_world(1, h, w, 0.08)
   free_cells = np.argwhere(~occupied)
-  truth = sensor.frame_truth(jnp.asarray(occupied))
   cast = transform(lambda u, v, a: sensor.cast(truth, occupied.shape, u, v, a, 12.0, 13)[0])
   close = 0
   total = 0
@@ -173,10 +178,8 @@ def _awkward_poses(rng, free_cells, count):
 
 @EAGER_AND_JIT
 def test_measure_equals_first_occupied_entry_of_trace(transform):
-  rng = np.random.default_rng(5)
   h, w = 24, 31
-  occupied = rng.random((h, w)) < 0.12
-  truth = sensor.frame_truth(jnp.asarray(occupied))
+  rng, occupied, truth = _random_world(5, h, w, 0.12)
   measure = transform(lambda u, v, a, r: sensor.measure(truth, (h, w), u, v, a, r, 30))
   for u0, v0, angles in _awkward_poses(rng, np.argwhere(~occupied), 14):
     for r_max in (3.0, 7.5, 29.0):
@@ -200,10 +203,8 @@ def test_measure_of_an_inactive_robot_hits_nothing():
 @EAGER_AND_JIT
 def test_mark_observed_equals_the_cells_of_trace(transform):
   """Free = entered before the measured range and not the beam's end cell; end cells occupied."""
-  rng = np.random.default_rng(6)
   h, w = 26, 21
-  occupied = rng.random((h, w)) < 0.1
-  truth = sensor.frame_truth(jnp.asarray(occupied))
+  rng, occupied, truth = _random_world(6, h, w, 0.1)
 
   def observe(u, v, a, key, noise, offset, exact):
     scan = sensor.measure(truth, (h, w), u, v, a, 12.0, 13, key=key, noise_cells=noise)
