@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from jaxplore import reductions
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.graph.extend import extend_into
 from jaxplore.planners import base
@@ -44,7 +45,7 @@ def plan_nearest_frontier(config, view: base.BeliefView, robot: base.RobotView, 
   dist, pred = reachable_paths(config, view, robot, node_cost)
   candidates = view.frontier & ~view.blacklist & jnp.isfinite(dist)
   score = jnp.where(candidates, dist, jnp.inf)
-  flat = jnp.argmin(score.ravel())
+  flat = reductions.argmin(score)
   goal = jnp.stack([flat // config.width, flat % config.width]).astype(jnp.int32)
   cost = score.ravel()[flat]
   valid = jnp.isfinite(cost)

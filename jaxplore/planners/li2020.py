@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import mapping
+from jaxplore import mapping, reductions
 from jaxplore.config import ConfigError
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.graph.tree import nearest_ancestor, path_sums
@@ -267,13 +267,13 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   marginal = gain - gain[root]
   score = jnp.where(weights["select"] > 0.5, marginal / jnp.maximum(length, config.res), marginal)
   score = jnp.where(candidates & (marginal > 1e-6), score, -jnp.inf)
-  best = jnp.argmax(score)
+  best = reductions.argmax(score, w)
   explore = jnp.isfinite(score[best])
 
   frontier_left = jnp.any(view.frontier.ravel() & reachable)
   needs_reloc = jnp.linalg.det(robot.cov) > weights["det_sigma_max"]
   fallback_score = jnp.where(boundary, reexplore, -jnp.inf)
-  fallback = jnp.argmax(fallback_score)
+  fallback = reductions.argmax(fallback_score, w)
   can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
   converged = (weights["e_min"] > 0) & (average_observable_entropy(view, config.gain_radius_cells) < weights["e_min"])
 
