@@ -374,82 +374,102 @@ def _window_origin(config: SimConfig, cell, side: int):
                     jnp.clip(cell[1] - side // 2, 0, config.width - side)]).astype(jnp.int32)
 
 
-def _propose_in_window(config: SimConfig, params: Params, state: State, robot, side: int, key):
-  """A windowed planner's plan made on the ``side`` x ``side`` window around the robot.
+_MAP_FIELDS = ("logodds", "entropy_map", "blacklist")
 
-  Returns (plan in grid coordinates, certified). Cells within :func:`window_margin` of an
-  edge of the window that is not an edge of the grid may see masks that differ from the whole
-  grid's, so they are blocked. Every path from the robot out of the remaining cells costs at
-  least ``edge`` cells (the Chebyshev distance to the first blocked cell); a plan that costs less
-  is therefore the whole grid's nearest candidate, with a shortest path: it is *certified*.
-  Otherwise (or when the window holds no candidate) the caller plans on the whole grid.
+
+def crop_maps(state: State, origin, shape) -> State:
+  """``state`` with its maps cut to the ``shape`` region at ``origin`` (what a window plans on)."""
+  crop = lambda grid: jax.lax.dynamic_slice(grid, (origin[0], origin[1]), shape)
+  return state.replace(**{name: crop(getattr(state, name)) for name in _MAP_FIELDS})
+
+
+def _propose(config: SimConfig, params: Params, state: State, robot, origin, key):
+  """The planner's plan on the region of the grid that ``state``'s maps hold, at ``origin``.
+
+  Returns (plan in grid coordinates, certified). The region is the whole grid or a window
+  around the robot. Cells within :func:`window_margin` of an edge of the window that is not an
+  edge of the grid may see masks that differ from the whole grid's, so they are blocked. Every
+  path from the robot out of the remaining cells costs at least ``edge`` cells (the Chebyshev
+  distance to the first blocked cell); a plan that costs less is therefore the whole grid's
+  nearest candidate, with a shortest path: it is *certified*. Otherwise (or when the window
+  holds no candidate) the caller plans on the whole grid. A plan on the whole grid is always
+  certified.
   """
   spec = planners_base.get_planner(config.planner)
-  local = dataclasses.replace(config, height=side, width=side, plan_window=0)
-  origin = _window_origin(config, robot.cell, side)
-  crop = lambda grid: jax.lax.dynamic_slice(grid, (origin[0], origin[1]), (side, side))
-  window_state = state.replace(logodds=crop(state.logodds), entropy_map=crop(state.entropy_map),
-                               blacklist=crop(state.blacklist))
+  rows, cols = state.logodds.shape
+  local = dataclasses.replace(config, height=rows, width=cols, plan_window=0)
   cell = robot.cell - origin
-  view = belief_view(local, params, window_state, cell)
-
-  margin = window_margin(config.max_inflation_cells)
-  rows = jnp.arange(side)[:, None]
-  cols = jnp.arange(side)[None, :]
-  inner = (origin[0] > 0, origin[0] + side < config.height, origin[1] > 0, origin[1] + side < config.width)
-  blocked = ((inner[0] & (rows < margin)) | (inner[1] & (rows >= side - margin)) |
-             (inner[2] & (cols < margin)) | (inner[3] & (cols >= side - margin)))
-  view = view.replace(free=view.free & ~blocked, traversable=view.traversable & ~blocked,
-                      frontier=view.frontier & ~blocked)
-  far = jnp.int32(config.height + config.width)
-  edge = jnp.min(jnp.stack([
-      jnp.where(inner[0], cell[0] - (margin - 1), far), jnp.where(inner[1], side - margin - cell[0], far),
-      jnp.where(inner[2], cell[1] - (margin - 1), far), jnp.where(inner[3], side - margin - cell[1], far)]))
+  view = belief_view(local, params, state, cell)
+  whole_grid = (rows, cols) == (config.height, config.width)
+  if whole_grid:
+    certified = jnp.bool_(True)
+  else:
+    margin = window_margin(config.max_inflation_cells)
+    r = jnp.arange(rows)[:, None]
+    c = jnp.arange(cols)[None, :]
+    inner = (origin[0] > 0, origin[0] + rows < config.height, origin[1] > 0, origin[1] + cols < config.width)
+    blocked = ((inner[0] & (r < margin)) | (inner[1] & (r >= rows - margin)) |
+               (inner[2] & (c < margin)) | (inner[3] & (c >= cols - margin)))
+    view = view.replace(free=view.free & ~blocked, traversable=view.traversable & ~blocked,
+                        frontier=view.frontier & ~blocked)
+    far = jnp.int32(config.height + config.width)
+    edge = jnp.min(jnp.stack([
+        jnp.where(inner[0], cell[0] - (margin - 1), far), jnp.where(inner[1], rows - margin - cell[0], far),
+        jnp.where(inner[2], cell[1] - (margin - 1), far), jnp.where(inner[3], cols - margin - cell[1], far)]))
 
   result = spec.plan(local, view, robot.replace(cell=cell), params, key)
-  certified = result.valid & (result.cost < edge.astype(jnp.float32) * config.res)
+  if not whole_grid:
+    certified = result.valid & (result.cost < edge.astype(jnp.float32) * config.res)
   to_grid = lambda cells: jnp.where(cells >= 0, cells + origin[None, :], cells)
   result = result.replace(waypoints=to_grid(result.waypoints), goal=result.goal + origin,
                           look_at=result.look_at + origin)
   return result, certified
 
 
-def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
-  """One robot's planning round on the whole grid: ask the planner, install the path, handle
-  no-op goals.
+@chex.dataclass(frozen=True)
+class PlanOutcome:
+  """What one planning round changes in one robot's state.
 
-  A robot whose planner finds no candidate ends ``exhausted`` (unless already complete). A goal
-  chosen twice in a row while the robot already stands on it cannot be resolved from here and
-  is blacklisted, so no robot waits on it forever.
+  Attributes:
+    state: the robot's state with its new plan; its map leaves are not meaningful (a round
+      reads the maps of a region of the grid and writes nothing but ``marks`` to them).
+    marks: i32[2, 2] goal cells to blacklist (the goal the robot arrived at, a stuck goal).
+    mark: bool[2] which of ``marks`` apply.
+    certified: bool; False when a window could not certify its plan: then nothing changes.
   """
-  return _plan_round(config, world, params, state, window=0)[0]
+
+  state: State
+  marks: chex.Array
+  mark: chex.Array
+  certified: chex.Array
 
 
-def _plan_round(config: SimConfig, world: World, params: Params, state: State, window: int):
-  """:func:`plan` on the whole grid (``window`` = 0) or, for a ``windowed`` planner, on the
-  ``window`` cells around the robot (:func:`_propose_in_window`). Returns (new state, certified);
-  a state whose plan is not certified must not be kept (always certified on the whole grid)."""
+def _plan_round(config: SimConfig, world: World, params: Params, state: State, origin) -> PlanOutcome:
+  """One robot's planning round on the region of the grid that ``state``'s maps hold.
+
+  ``state`` is one robot's state whose map leaves are the whole grid (``origin`` = (0, 0)) or,
+  for a ``windowed`` planner, a window at ``origin`` (:func:`crop_maps`). A robot whose planner
+  finds no candidate ends ``exhausted`` (unless already complete). A goal chosen twice in a row
+  while the robot already stands on it cannot be resolved from here and is blacklisted, so no
+  robot waits on it forever.
+  """
   spec = planners_base.get_planner(config.planner)
   key, k_plan = jax.random.split(state.key)
   running = ~state.done
-  blacklist = state.blacklist
+  arrival_goal = state.goal
+  arrived = jnp.bool_(False)
   if spec.blacklist_on_arrival:
     arrived = running & (state.path_len > 0) & (state.path_idx >= state.path_len)
-    blacklist = blacklist.at[state.goal[0], state.goal[1]].max(
-        arrived, mode="drop", wrap_negative_indices=False)
-  state = state.replace(blacklist=blacklist)
+    local_goal = state.goal - origin
+    state = state.replace(blacklist=state.blacklist.at[local_goal[0], local_goal[1]].max(
+        arrived, mode="drop", wrap_negative_indices=False))
   robot = robot_view(config, world, state)
-  if window:
-    result, certified = _propose_in_window(config, params, state, robot, window, k_plan)
-  else:
-    result = spec.plan(config, belief_view(config, params, state, robot.cell), robot, params, k_plan)
-    certified = jnp.bool_(True)
-  stuck = result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
-  blacklist = blacklist.at[result.goal[0], result.goal[1]].max(stuck & running)
+  result, certified = _propose(config, params, state, robot, origin, k_plan)
+  stuck = running & result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
   exhausted = running & ~result.valid
   install = running & result.valid
   state = state.replace(
-      key=key, blacklist=blacklist, since_plan=jnp.int32(0),
+      key=key, since_plan=jnp.int32(0),
       waypoints=jnp.where(install, result.waypoints, state.waypoints),
       path_len=jnp.where(install, result.length, 0),
       path_idx=jnp.where(install, jnp.minimum(1, result.length), 0),
@@ -458,7 +478,35 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, w
       last_goal=jnp.where(install, result.goal, state.last_goal),
       done=state.done | exhausted,
       reason=jnp.where(exhausted, EXHAUSTED, state.reason))
-  return state, certified
+  return PlanOutcome(state=state, marks=jnp.stack([arrival_goal, result.goal]),
+                     mark=jnp.stack([arrived, stuck]), certified=certified)
+
+
+def _apply_plans(state: State, robots, outcome: PlanOutcome) -> State:
+  """Writes the outcomes of robots ``robots`` (i32[C], a batch of outcomes) into the batched
+  ``state``: the small leaves of certified outcomes, and their blacklist marks."""
+  ok = outcome.certified
+  small = {}
+  for field in dataclasses.fields(State):
+    if field.name in _MAP_FIELDS:
+      continue
+    old, new = getattr(state, field.name), getattr(outcome.state, field.name)
+    keep = ok.reshape(ok.shape + (1,) * (new.ndim - 1))
+    small[field.name] = old.at[robots].set(jnp.where(keep, new, old[robots]))
+  mark = outcome.mark & ok[:, None]
+  rows, cols = outcome.marks[..., 0], outcome.marks[..., 1]
+  blacklist = state.blacklist.at[robots[:, None], rows, cols].max(
+      mark, mode="drop", wrap_negative_indices=False)
+  return state.replace(blacklist=blacklist, **small)
+
+
+def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
+  """One robot's planning round on the whole grid: ask the planner, install the path, handle
+  no-op goals (see :func:`_plan_round`)."""
+  outcome = _plan_round(config, world, params, state, jnp.zeros((2,), jnp.int32))
+  batch = lambda tree: jax.tree.map(lambda x: x[None], tree)
+  new = _apply_plans(batch(state), jnp.zeros((1,), jnp.int32), batch(outcome))
+  return jax.tree.map(lambda x: x[0], new)
 
 
 def needs_plan(config: SimConfig, state: State):
@@ -474,27 +522,36 @@ def uses_window(config: SimConfig) -> bool:
 
 
 def _plan_robots(config: SimConfig, world: World, params: Params, state: State, need, window: int):
-  """:func:`plan` for the robots with ``need`` set, ``plan_chunk`` at a time; returns the new
-  state and which robots got their plan (all of them without a window; with one, those whose
-  window plan was certified: the others keep their state)."""
+  """:func:`plan` for the robots with ``need`` set, ``plan_chunk`` at a time, on the window of
+  ``window`` cells around each (0 = the whole grid). Returns the new state and which robots got
+  their plan (all of them on the whole grid; with a window, those whose plan was certified: the
+  others keep their state).
+
+  Each robot's maps are read straight from the batch, cropped to its window; a round writes
+  back only its small leaves and blacklist marks (:func:`_apply_plans`), never whole maps.
+  """
   batch = need.shape[0]
   chunk = min(config.plan_chunk, batch)
   order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
   order = jnp.where(order < 0, order[0], order)
   n_chunks = (jnp.sum(need.astype(jnp.int32)) + chunk - 1) // chunk
-  plan_chunk_fn = jax.vmap(lambda p, s: _plan_round(config, world, p, s, window))
+  shape = (window, window) if window else (config.height, config.width)
 
   def plan_chunk(k, carry):
     state, planned = carry
     robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
-    take = lambda tree: jax.tree.map(lambda x: x[robots], tree)
-    old = take(state)
-    new, ok = plan_chunk_fn(take(params), old)
-    if window:
-      keep = lambda n, o: jnp.where(ok.reshape(ok.shape + (1,) * (n.ndim - 1)), n, o)
-      new = jax.tree.map(keep, new, old)
-    state = jax.tree.map(lambda x, n: x.at[robots].set(n), state, new)
-    return state, planned.at[robots].set(ok)
+
+    def plan_one(p, robot):
+      one = {f.name: getattr(state, f.name)[robot] for f in dataclasses.fields(State)
+             if f.name not in _MAP_FIELDS}
+      cell = cell_of(one["pose_est"][:2], world.origin, config.res)
+      origin = _window_origin(config, cell, window) if window else jnp.zeros((2,), jnp.int32)
+      maps = {name: jax.lax.dynamic_slice(getattr(state, name), (robot, origin[0], origin[1]), (1,) + shape)[0]
+              for name in _MAP_FIELDS}
+      return _plan_round(config, world, p, State(**one, **maps), origin)
+
+    outcome = jax.vmap(plan_one)(jax.tree.map(lambda x: x[robots], params), robots)
+    return _apply_plans(state, robots, outcome), planned.at[robots].set(outcome.certified)
 
   return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))
 

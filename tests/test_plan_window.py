@@ -40,7 +40,8 @@ def full_and_window_plans(config, world, params, states, window):
     key = jax.random.PRNGKey(0)
     full = base.get_planner(config.planner).plan(config, sim.belief_view(config, p, s, robot.cell),
                                                  robot, p, key)
-    local, certified = sim._propose_in_window(config, p, s, robot, window, key)
+    origin = sim._window_origin(config, robot.cell, window)
+    local, certified = sim._propose(config, p, sim.crop_maps(s, origin, (window, window)), robot, origin, key)
     view = sim.belief_view(config, p, s, robot.cell)
     node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
     dist, _ = frontier.reachable_paths(config, view, robot, node_cost)
