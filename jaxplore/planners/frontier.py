@@ -29,7 +29,7 @@ def reachable_paths(config, view: base.BeliefView, robot: base.RobotView, node_c
 
 def plan_to(config, view: base.BeliefView, robot: base.RobotView, pred, goal, valid):
   """Waypoints from the robot to ``goal``, cut before the first non-traversable cell."""
-  cells, length = extract_path(pred, goal, config.path_capacity)
+  cells, length = extract_path(pred, goal, config.path_capacity, source=robot.cell)
   on_free_ground = view.traversable[cells[:, 0], cells[:, 1]]
   index = jnp.arange(config.path_capacity)
   blocked_at = jnp.min(jnp.where((index >= 1) & ~on_free_ground, index, config.path_capacity))

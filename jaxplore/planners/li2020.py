@@ -280,7 +280,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   chosen = jnp.where(explore, best, fallback)
   valid = (explore | can_fallback) & ~converged
   goal = jnp.stack([chosen // w, chosen % w]).astype(jnp.int32)
-  cells, length_wp = extract_path(sp.pred, goal, config.path_capacity)
+  cells, length_wp = extract_path(sp.pred, goal, config.path_capacity, source=robot.cell)
   look_at = base.unknown_neighbour(goal, view.unknown, view.occupied)
   return base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32), goal=goal,
                    look_at=look_at, valid=valid, gain=jnp.where(explore, gain[chosen], reexplore[chosen]),
