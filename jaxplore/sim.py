@@ -354,8 +354,9 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell) -> 
   inflated = mapping.inflate(occupied, params.r_robot / config.res, config.max_inflation_cells)
   escape_zone = free & inflated
   escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(True, mode="drop") & escape_zone
-  for _ in range(config.max_inflation_cells + 1):
-    escape = escape | (mapping.any_neighbour(escape) & escape_zone)
+  # A loop, not unrolled: XLA would fuse each step into the next one's 8 neighbour reads.
+  escape = jax.lax.fori_loop(0, config.max_inflation_cells + 1,
+                             lambda _, e: e | (mapping.any_neighbour(e) & escape_zone), escape)
   return planners_base.BeliefView(
       logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
       unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 
 from jaxplore import mapping
@@ -29,7 +30,11 @@ def extend_into(dist, pred, allowed, steps: int):
   flat = jnp.arange(h * w, dtype=jnp.int32).reshape(h, w)
   target = allowed & ~jnp.isfinite(dist)
   framed_flat = mapping.frame(flat, -1)
-  for _ in range(steps):
+
+  def relax(_, carry):
+    # A loop, not an unrolled Python loop: XLA would fuse each step into the next one's 8
+    # neighbour reads and evaluate it 8 times per cell.
+    dist, pred = carry
     framed = mapping.frame(dist, jnp.inf)
     best = dist
     best_pred = pred
@@ -39,5 +44,6 @@ def extend_into(dist, pred, allowed, steps: int):
       better = target & (cand < best)
       best = jnp.where(better, cand, best)
       best_pred = jnp.where(better, mapping.shifted(framed_flat, di, dj), best_pred)
-    dist, pred = best, best_pred
-  return dist, pred
+    return best, best_pred
+
+  return jax.lax.fori_loop(0, steps, relax, (dist, pred))
