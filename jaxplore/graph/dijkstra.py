@@ -10,8 +10,13 @@ depend on each other, so a step is one vector operation), then a loop up the row
 same over the columns, left to right and right to left. One *round* of these 4 sweeps carries
 a shortest path along every stretch of it whose moves agree with a sweep's direction, so open
 rooms converge in a handful of rounds (mazes, whose paths turn at every corridor, need
-hundreds); rounds repeat in a ``lax.while_loop`` until one changes nothing. Values only ever
-decrease, and every finite value is the float32 length of a real path.
+hundreds). After each round, relaxing every cell once from its 8 neighbours (a single vector
+pass, with the same float expressions as the sweeps) checks for a fixed point: distances that
+are lengths of real paths and that no edge can lower are the shortest ones, so rounds repeat in
+a ``lax.while_loop`` only while that check would still lower some cell. A room-like
+map thus stops after the round that settles it instead of running a second round to find
+nothing changed. Values only ever decrease, and every finite value is the float32 length of a
+real path.
 
 Predecessors are chosen once, from the converged distances: a cell points at a neighbour with
 a strictly smaller distance whose edge is tight. Strictly smaller distances make the field a
@@ -67,7 +72,7 @@ class ShortestPaths(NamedTuple):
     dist: f32[H, W]; path cost from the source; inf where unreachable; 0 at the source.
     pred: i32[H, W]; flat index ``r * W + c`` of each cell's predecessor on a shortest path;
       -1 at the source and at unreachable cells.
-    sweeps: i32[]; rounds of the 4 sweeps run, counting the last one, which found nothing to
+    sweeps: i32[]; rounds of the 4 sweeps run; after the last one the fixed-point check found nothing to
       improve when ``converged``.
     converged: bool[]; False if ``max_sweeps`` rounds ran out before a fixed point (then
       ``dist`` is an upper bound and ``pred`` may be -1 at reachable cells).
@@ -84,13 +89,13 @@ def default_max_sweeps(height: int, width: int) -> int:
 
   Take a shortest path with the fewest moves: it visits no cell twice, so it has at most
   ``H * W - 1`` moves, and each round fixes at least its next move (every move goes along one
-  of the 4 sweeps), so the last round needed is followed by one that changes nothing. Real maps
+  of the 4 sweeps), so after the last round needed the fixed-point check finds nothing. Real maps
   stop long before: ~5 rounds for 256 x 256 room-like worlds, ~150 for 256 x 256 mazes.
   """
   return height * width
 
 
-def _sweep_there_and_back(dist: jax.Array, cost: jax.Array) -> jax.Array:
+def _sweep_there_and_back(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
   """Two sweeps over the lines (axis 0) of a framed ``[N + 2, M + 2, C]`` array, in place.
 
   Steps 0..N-1 go forward: line ``i`` = 1..N becomes the min of itself and the relaxation from
@@ -98,7 +103,6 @@ def _sweep_there_and_back(dist: jax.Array, cost: jax.Array) -> jax.Array:
   line 1, relaxing from line ``i + 1``.
   """
   num_lines, line_length = dist.shape[0] - 2, dist.shape[1] - 2
-  diag_factor = jnp.float32(_SQRT2)
 
   def relax_line(step, dist):
     forward = step < num_lines
@@ -110,11 +114,31 @@ def _sweep_there_and_back(dist: jax.Array, cost: jax.Array) -> jax.Array:
     straight = previous[1 : line_length + 1] + step_cost
     # Taking the min before adding is exact: rounding is monotone, so
     # fl(min(a, b) + x) = min(fl(a + x), fl(b + x)).
-    diagonal = jnp.minimum(previous[:line_length], previous[2:]) + step_cost * diag_factor
+    diagonal = jnp.minimum(previous[:line_length], previous[2:]) + lax.dynamic_index_in_dim(
+        diagonal_cost, line, keepdims=False)[1 : line_length + 1]
     new = jnp.minimum(old, jnp.minimum(straight, diagonal))
     return lax.dynamic_update_slice(dist, new[None], (line, 1, 0))
 
   return lax.fori_loop(0, 2 * num_lines, relax_line, dist)
+
+
+def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
+  """bool[C]: whether relaxing every cell of a framed ``[H + 2, W + 2, C]`` array once from its
+  8 neighbours lowers any distance of each grid.
+
+  The sums are the sweeps' own additions (``neighbour + cost``, ``min(diagonals) +
+  diagonal_cost``, with the same precomputed ``diagonal_cost``), so a fixed point of the sweeps
+  is a fixed point here. (Multiplying by sqrt(2) in both places is not enough: XLA may contract
+  one product and sum into a fused multiply-add and not the other, and the check would then see
+  a one-ulp improvement the sweeps can never make.)
+  """
+  height, width = dist.shape[0] - 2, dist.shape[1] - 2
+  at = lambda dr, dc: dist[1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
+  step_cost = cost[1:-1, 1:-1]
+  straight = jnp.minimum(jnp.minimum(at(-1, 0), at(1, 0)), jnp.minimum(at(0, -1), at(0, 1))) + step_cost
+  diagonal = (jnp.minimum(jnp.minimum(at(-1, -1), at(-1, 1)), jnp.minimum(at(1, -1), at(1, 1)))
+              + diagonal_cost[1:-1, 1:-1])
+  return jnp.any(jnp.minimum(straight, diagonal) < at(0, 0), axis=(0, 1))
 
 
 def _tight_predecessors(dist: jax.Array, node_cost: jax.Array, source: jax.Array) -> jax.Array:
@@ -191,15 +215,21 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> Sh
   # The barrier keeps XLA from fusing the interleaving transpose into every reader.
   cost_rows = lax.optimization_barrier(framed_cost)
   cost_cols = cost_rows.transpose(1, 0, 2)
+  # Diagonal step costs are computed once, outside the loop, so every use adds the same floats.
+  diagonal_rows = framed_cost * jnp.float32(_SQRT2)
+  diagonal_cols = diagonal_rows.transpose(1, 0, 2)
   rows = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 0)
   cols = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 1)
   at_source = (rows == source[None, None, :, 0] + 1) & (cols == source[None, None, :, 1] + 1)
   dist = jnp.where(at_source, jnp.float32(0), inf)
 
   def one_round(dist):
-    dist = _sweep_there_and_back(dist, cost_rows)
-    dist = _sweep_there_and_back(dist.transpose(1, 0, 2), cost_cols)
-    return dist.transpose(1, 0, 2)
+    """The 4 sweeps, and whether one more relaxation would still lower a cell (checked on the
+    column-major array the last sweeps leave, with the transposed costs: the 8-neighbourhood
+    is symmetric under transposition)."""
+    dist = _sweep_there_and_back(dist, cost_rows, diagonal_rows)
+    dist = _sweep_there_and_back(dist.transpose(1, 0, 2), cost_cols, diagonal_cols)
+    return dist.transpose(1, 0, 2), _lowered_by_one_relaxation(dist, cost_cols, diagonal_cols)
 
   def not_done(carry):
     _, rounds, active, _ = carry
@@ -207,11 +237,10 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> Sh
 
   def body(carry):
     dist, rounds, active, sweeps = carry
-    new_dist = one_round(dist)
-    # Distances never increase, so "changed" means "some cell improved". A grid that has
-    # converged stays put while the others in its chunk finish.
-    changed = jnp.any(new_dist < dist, axis=(0, 1))
-    return new_dist, rounds + 1, active & changed, sweeps + active.astype(jnp.int32)
+    # A grid that has converged stays put while the others in its chunk finish; a grid the
+    # check can still lower gets another round, which relaxes every edge the check did.
+    dist, changed = one_round(dist)
+    return dist, rounds + 1, active & changed, sweeps + active.astype(jnp.int32)
 
   # *_like keeps the carry's type equal to the body's output under shard_map (varying axes).
   init = (dist, jnp.int32(0), jnp.ones_like(source[:, 0], bool), jnp.zeros_like(source[:, 0]))
