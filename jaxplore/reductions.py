@@ -19,7 +19,8 @@ def _arg_extreme(values: jax.Array, width: int | None, reduce, arg_reduce) -> ja
   flat = values.ndim == 1
   if flat:
     if width is None or values.shape[0] % width:
-      raise ValueError(f"a flat array of {values.shape[0]} values needs the grid width that divides it, got {width}")
+      raise ValueError(f"a flat array of {values.shape[0]} values needs the grid width that "
+                       f"divides it, got {width}")
     values = values.reshape(-1, width)
   elif values.ndim != 2:
     raise ValueError(f"expected a 1-D or 2-D array, got shape {values.shape}")

@@ -547,7 +547,8 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
              if f.name not in _MAP_FIELDS}
       cell = cell_of(one["pose_est"][:2], world.origin, config.res)
       origin = _window_origin(config, cell, window) if window else jnp.zeros((2,), jnp.int32)
-      maps = {name: jax.lax.dynamic_slice(getattr(state, name), (robot, origin[0], origin[1]), (1,) + shape)[0]
+      corner = (robot, origin[0], origin[1])
+      maps = {name: jax.lax.dynamic_slice(getattr(state, name), corner, (1,) + shape)[0]
               for name in _MAP_FIELDS}
       return _plan_round(config, world, p, State(**one, **maps), origin)
 
