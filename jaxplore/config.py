@@ -50,7 +50,7 @@ class SimConfig:
     plan_window: side in cells of the square window around the robot that a ``windowed``
       planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
       window cannot certify the answer. 0 = always the whole grid. :func:`config_for` picks it
-      from the sensor range (:func:`auto_plan_window`).
+      from the sensor range, capped at :data:`PLAN_REACH_M` (:func:`auto_plan_window`).
   """
 
   height: int
@@ -253,12 +253,28 @@ def window_margin(max_inflation_cells: int) -> int:
   return 2 * max_inflation_cells + 3
 
 
-def auto_plan_window(height: int, width: int, max_range_cells: int, max_inflation_cells: int) -> int:
-  """A planning window wide enough to hold the nearest frontier while a robot explores (a
-  sensor range on each side of it, plus the margin), rounded up to 32 cells; 0 (off) when it
-  would not have at most a quarter of the grid's cells."""
-  side = 32 * math.ceil((2 * max_range_cells + 2 * window_margin(max_inflation_cells) + 8) / 32)
-  return side if 4 * side * side <= height * width and side < min(height, width) else 0
+# Distance (m) around the robot a planning window is sized for. The nearest frontier is usually
+# this close whatever the sensor range: frontiers also open at the edges of the field of view and
+# behind nearby obstacles. Measured with nearest frontier, 32 robots, the li2020 preset (15 m
+# lidar) over the first 600 steps (office 1200): a 96-cell window at 0.1 m could not certify
+# 0.6 % of plans on `open`, 10.9 % on `lab`, 6.5 % on `office`, against 8.0 %, 25.0 %, 14.4 %
+# with 64 cells; 128 cells certify 94-100 % but cost ~1.8x a 96-cell plan. Explore-Bench `room`
+# (3.5 m lidar): 0.9 % over the first 600 steps, 17 % over whole episodes.
+PLAN_REACH_M = 3.5
+
+
+def plan_reach_cells(max_range_cells: int, res: float) -> int:
+  """Cells on each side of the robot a planning window is sized for: the sensor range, at most
+  :data:`PLAN_REACH_M` metres."""
+  return min(max_range_cells, max(1, math.ceil(PLAN_REACH_M / res - 1e-6)))
+
+
+def auto_plan_window(height: int, width: int, reach_cells: int, max_inflation_cells: int) -> int:
+  """A planning window that holds the nearest frontier in most plans: ``reach_cells``
+  (:func:`plan_reach_cells`) on each side of the robot plus the margin, rounded up to 32 cells;
+  0 (off) when it would not have at most half the grid's cells."""
+  side = 32 * math.ceil((2 * reach_cells + 2 * window_margin(max_inflation_cells) + 8) / 32)
+  return side if 2 * side * side <= height * width and side < min(height, width) else 0
 
 
 def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
@@ -279,6 +295,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
     kwargs["replan_every"] = PRESETS[preset].replan_every
   kwargs.update(overrides)
   if "plan_window" not in overrides:
-    kwargs["plan_window"] = auto_plan_window(kwargs["height"], kwargs["width"],
-                                             kwargs["max_range_cells"], kwargs["max_inflation_cells"])
+    reach = plan_reach_cells(kwargs["max_range_cells"], kwargs["res"])
+    kwargs["plan_window"] = auto_plan_window(kwargs["height"], kwargs["width"], reach,
+                                             kwargs["max_inflation_cells"])
   return SimConfig(**kwargs)
