@@ -338,8 +338,8 @@ def report(args, rows, lidar_rows, load_at_start: str, wall_s: float) -> str:
       "`done` = robots finished at the end of the window. Compile time is apart from run time "
       "(`-` = executable reused from an earlier world of the same shape). Plan window: the side "
       "of the window around each robot that nearest frontier plans on first (`SimConfig.plan_window`, "
-      "picked from the sensor range capped at 3.5 m; the whole grid is planned only when the window cannot "
-      "certify the nearest frontier); `off` = whole grid every time"
+      "picked from the sensor range capped at 3.5 m; the whole grid is planned only when the window "
+      "cannot certify the nearest frontier); `off` = whole grid every time"
       + (" (rows in italics: the same setting with the window off, for comparison; the summaries "
          "below use the default rows only)." if any(not r["main"] for r in rows) else "."),
       "",
@@ -413,13 +413,15 @@ def combine_repeats(name, preset, shape, window, main, refs, engines) -> dict:
   ratios = [e["engine_rate"] / r["ref_rate"] for e, r in zip(engines, refs)]
   first = engines[0]
   compile_s = next((e["compile_s"] for e in engines if e["compile_s"] is not None), None)
-  ref = min(refs, key=lambda r: abs(r["ref_rate"] - median([q["ref_rate"] for q in refs])))
+  ref_rate = median([r["ref_rate"] for r in refs])
+  # Phases and coverage of the reference come from its repeat nearest the median.
+  ref = min(refs, key=lambda r: abs(r["ref_rate"] - ref_rate))
   return dict(world=name, preset=preset, shape=shape, window=window, main=main,
               robots=first["robots"], devices=first["devices"], compile_s=compile_s,
               run_s=median([e["run_s"] for e in engines]),
               engine_rate=median([e["engine_rate"] for e in engines]), done=first["done"],
               coverage=first["coverage"], ratio_min=min(ratios), ratio_max=max(ratios),
-              repeats=len(engines), **{**ref, "ref_rate": median([r["ref_rate"] for r in refs])})
+              **{**ref, "ref_rate": ref_rate})
 
 
 def main(args):
@@ -449,8 +451,8 @@ def main(args):
         engines[robots, window].append(engine)
         compile_text = "cached" if engine["compile_s"] is None else f"{engine['compile_s']:.1f} s"
         print(f"  {robots:>4} robots, plan window {window or 'off'}: compile {compile_text}, engine "
-              f"{engine['engine_rate']:.0f} robot-steps/s ({engine['engine_rate'] / refs[-1]['ref_rate']:.1f}x "
-              f"the reference of this repeat), done {engine['done']}/{robots}", flush=True)
+              f"{engine['engine_rate']:.0f} robot-steps/s "
+              f"({engine['engine_rate'] / refs[-1]['ref_rate']:.1f}x the reference of this repeat), done {engine['done']}/{robots}", flush=True)
     for robots, window in settings:
       rows.append(combine_repeats(name, preset, grid.shape, window, window == config.plan_window,
                                   refs, engines[robots, window]))
