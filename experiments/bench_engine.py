@@ -452,7 +452,8 @@ def main(args):
         compile_text = "cached" if engine["compile_s"] is None else f"{engine['compile_s']:.1f} s"
         print(f"  {robots:>4} robots, plan window {window or 'off'}: compile {compile_text}, engine "
               f"{engine['engine_rate']:.0f} robot-steps/s "
-              f"({engine['engine_rate'] / refs[-1]['ref_rate']:.1f}x the reference of this repeat), done {engine['done']}/{robots}", flush=True)
+              f"({engine['engine_rate'] / refs[-1]['ref_rate']:.1f}x the reference of this repeat), "
+              f"done {engine['done']}/{robots}", flush=True)
     for robots, window in settings:
       rows.append(combine_repeats(name, preset, grid.shape, window, window == config.plan_window,
                                   refs, engines[robots, window]))
