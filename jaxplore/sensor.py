@@ -23,9 +23,10 @@ Two forms of the same traversal:
   definition, used by tests and tools.
 * :func:`measure` (the first occupied cell of each beam) and :func:`mark_observed` (the cells a
   scan saw free or occupied) are what the engine runs, one robot at a time. They walk the
-  crossings in blocks of ``BLOCK`` per axis for groups of ``GROUP`` neighbouring beams and stop
+  crossings in blocks of a few crossings per axis for groups of neighbouring beams and stop
   as soon as the group is done: indoors most beams end within a few metres, so most of the
-  ``[n, K]`` entries are never computed. Both evaluate the float expressions of
+  ``[n, K]`` entries are never computed. A short-range scan is marked in one block for all
+  beams instead (the loop would cost more than the entries it saves). Both evaluate the float expressions of
   :func:`beam_cells` (:func:`_crossings`), so they find bit-identical cells and distances.
 """
 
@@ -39,9 +40,13 @@ import jax.numpy as jnp
 CORNER_EPS = 1e-3  # cells; a grid line crossed this close to another counts as a corner
 # Beams walked in lockstep (the vector width) and crossings per axis per loop iteration. A group
 # walks as far as its longest beam; an iteration has a fixed cost of about a microsecond on
-# XLA:CPU. 32 x 8 was the best trade-off measured on this 2-core CPU.
-GROUP = 32
-BLOCK = 8
+# XLA:CPU. The best trade-offs measured on this 2-core CPU (experiments/bench_engine.py worlds,
+# the whole step timed): 32 x 8 to find the hits; 64 x 8 to mark the cells seen (a 15 m scan:
+# 0.92x the step time of 32 x 8), and for ranges up to MARK_WHOLE_RANGE crossings every beam at
+# once to its full range (Explore-Bench's 3.5 m at 0.1 m: 0.81-0.90x; a 15 m scan so: 1.2x).
+MEASURE_GROUP, MEASURE_BLOCK = 32, 8
+MARK_GROUP, MARK_BLOCK = 64, 8
+MARK_WHOLE_RANGE = 48
 OBS_TILE = 16  # observations are stored in OBS_TILE x OBS_TILE tiles (see empty_observation)
 PROMISE_IN_BOUNDS = jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
 
@@ -202,9 +207,9 @@ def beam_angles(theta, fov, n_beams: int):
   return theta + offsets
 
 
-def _groups(a):
-  """Splits a beam axis into [n_groups, GROUP], padding with copies of the last beam."""
-  return jnp.pad(a, (0, -a.shape[0] % GROUP), mode="edge").reshape(-1, GROUP)
+def _groups(a, group: int):
+  """Splits a beam axis into [n_groups, group], padding with copies of the last beam."""
+  return jnp.pad(a, (0, -a.shape[0] % group), mode="edge").reshape(-1, group)
 
 
 def _for_each_group(n_groups, active, body, carry):
@@ -240,8 +245,8 @@ def measure(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=
   none = jnp.int32(n_cross)  # "no occupied crossing found" on an axis
   start_row, start_col = jnp.floor(v0).astype(jnp.int32), jnp.floor(u0).astype(jnp.int32)
   start_occupied = truth_framed[_framed_index(start_row, start_col, shape)]
-  grouped = tuple(_groups(a) for a in (du, dv))
-  block = jnp.arange(BLOCK, dtype=jnp.int32)[:, None]  # crossings on axis 0, beams on axis 1
+  grouped = tuple(_groups(a, MEASURE_GROUP) for a in (du, dv))
+  block = jnp.arange(MEASURE_BLOCK, dtype=jnp.int32)[:, None]  # crossings on axis 0, beams on axis 1
 
   def walk_group(g, found):
     b = beams(u0, v0, None, (grouped[0][g], grouped[1][g]))
@@ -260,7 +265,7 @@ def measure(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=
           mode=PROMISE_IN_BOUNDS)
       kx = jnp.minimum(kx, jnp.min(jnp.where(occupied(row_x, col_x), k, none), axis=0))
       ky = jnp.minimum(ky, jnp.min(jnp.where(occupied(row_y, col_y), k, none), axis=0))
-      return k0 + BLOCK, kx, ky
+      return k0 + MEASURE_BLOCK, kx, ky
 
     def unfinished(carry):
       k0, kx, ky = carry
@@ -268,7 +273,7 @@ def measure(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=
       nearest = jnp.minimum(*hit_distances(kx, ky))
       return (k0 < n_cross) & (k0 <= r_max_cells) & ~start_occupied & jnp.any(nearest >= k0)
 
-    missing = jnp.full((GROUP,), none)
+    missing = jnp.full((MEASURE_GROUP,), none)
     _, kx, ky = jax.lax.while_loop(unfinished, body, (jnp.int32(0), missing, missing))
     t_x, t_y = hit_distances(kx, ky)
     (_, row_x, col_x), _ = _crossings(b, u0, v0, kx.astype(jnp.float32))
@@ -386,8 +391,11 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
   start = free_index(start_rows, start_cols, 0.0, jnp.where(active, scan.ranges, 0.0), end_index)
   observed = observed.at[start].set(1, mode=PROMISE_IN_BOUNDS)
 
-  grouped = tuple(_groups(a) for a in (du, dv, scan.ranges, end_index))
-  block = jnp.arange(BLOCK, dtype=jnp.int32)[:, None]
+  group, block_size = MARK_GROUP, MARK_BLOCK
+  if n_cross <= MARK_WHOLE_RANGE:
+    group, block_size = scan.ranges.shape[0], n_cross
+  grouped = tuple(_groups(a, group) for a in (du, dv, scan.ranges, end_index))
+  block = jnp.arange(block_size, dtype=jnp.int32)[:, None]
 
   def walk_group(g, observed):
     du, dv, ranges, end_index = (a[g] for a in grouped)
@@ -399,7 +407,7 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
       (t_x, row_x, col_x), (t_y, row_y, col_y) = _crossings(b, u0, v0, (k0 + block).astype(jnp.float32))
       index = jnp.concatenate([free_index(row_x, col_x, t_x, ranges[None], end_index[None]),
                                free_index(row_y, col_y, t_y, ranges[None], end_index[None])])
-      return k0 + BLOCK, observed.at[index.ravel()].set(1, mode=PROMISE_IN_BOUNDS)
+      return k0 + block_size, observed.at[index.ravel()].set(1, mode=PROMISE_IN_BOUNDS)
 
     # Crossing k is at least k cells away: none past the longest range of the group is free.
     return jax.lax.while_loop(lambda c: (c[0] < n_cross) & (c[0] < furthest), body,

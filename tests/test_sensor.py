@@ -201,8 +201,11 @@ def test_measure_of_an_inactive_robot_hits_nothing():
 
 
 @EAGER_AND_JIT
-def test_mark_observed_equals_the_cells_of_trace(transform):
+@pytest.mark.parametrize("walk", ["whole range at once", "in blocks"])
+def test_mark_observed_equals_the_cells_of_trace(transform, walk, monkeypatch):
   """Free = entered before the measured range and not the beam's end cell; end cells occupied."""
+  if walk == "in blocks":  # the walk of long-range scans, forced on this short one
+    monkeypatch.setattr(sensor, "MARK_WHOLE_RANGE", 0)
   h, w = 26, 21
   rng, occupied, truth = _random_world(6, h, w, 0.1)
 
