@@ -533,9 +533,14 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
   """
   batch = need.shape[0]
   chunk = min(config.plan_chunk, batch)
+  n_need = jnp.sum(need.astype(jnp.int32))
   order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
-  order = jnp.where(order < 0, order[0], order)
-  n_chunks = (jnp.sum(need.astype(jnp.int32)) + chunk - 1) // chunk
+  # A last partial chunk is filled with copies of its own last robot: they plan from the same
+  # state and write the same result. (A robot of an earlier chunk would plan a second time,
+  # from its new state, and its key would advance twice: the noise it draws next, and so its
+  # run, would depend on the batch around it.)
+  order = jnp.where(order < 0, order[jnp.maximum(n_need - 1, 0)], order)
+  n_chunks = (n_need + chunk - 1) // chunk
   shape = (window, window) if window else (config.height, config.width)
 
   def plan_chunk(k, carry):
@@ -565,8 +570,8 @@ def plan_where_needed(config: SimConfig, world: World, params: Params, state: St
   chunks of ``config.plan_chunk``, planned with ``vmap`` (a chunk of 4 plans about twice as fast
   per robot as one robot alone: the shortest-path sweeps vectorise across the chunk) and
   scattered back in place; robots that do not plan cost nothing, where a batched ``lax.cond``
-  would run the planner for all of them. A last partial chunk is filled with repeats of a robot
-  that plans anyway (its copies compute and write the same result).
+  would run the planner for all of them. A last partial chunk is filled with repeats of its own
+  last robot (its copies compute and write the same result).
 
   With a planning window (:func:`uses_window`), every robot first plans on the window around
   it, and only those whose answer the window cannot certify plan again on the whole grid: the
