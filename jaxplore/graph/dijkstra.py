@@ -155,8 +155,8 @@ def _tight_predecessors(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Arr
   hoists every loop-invariant array out of it, and ``flat + offset`` for 8 offsets became 8
   materialised int32 grids that the stencil then read back. For the same reason the stencil
   reads the arrays the sweeps already hold (a ``[C, H, W]`` view of them was re-indexed
-  through a transpose or a caller's slice at each of its 8 neighbour reads): together ~5x
-  faster inside a loop.
+  through a transpose or a caller's slice at each of its 8 neighbour reads). Together, 64
+  open 96 x 96 maps in chunks of 4: 163 -> 125 us per map (the distances alone: 76).
 
   Args:
     dist: f32[H + 2, W + 2, C]; converged distances in an inf frame.
