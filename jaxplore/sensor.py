@@ -26,8 +26,9 @@ Two forms of the same traversal:
   crossings in blocks of a few crossings per axis for groups of neighbouring beams and stop
   as soon as the group is done: indoors most beams end within a few metres, so most of the
   ``[n, K]`` entries are never computed. A short-range scan is marked in one block for all
-  beams instead (the loop would cost more than the entries it saves). Both evaluate the float expressions of
-  :func:`beam_cells` (:func:`_crossings`), so they find bit-identical cells and distances.
+  beams instead (the loop would cost more than the entries it saves). Both evaluate the float
+  expressions of :func:`beam_cells` (:func:`_crossings`), so they find bit-identical cells and
+  distances.
 """
 
 from __future__ import annotations
