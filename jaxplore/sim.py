@@ -591,7 +591,7 @@ def plan_where_needed(config: SimConfig, world: World, params: Params, state: St
   if chunk == 1:
     return _plan_robots(config, world, params, state, need, 0, 1)[0]
   rank = jnp.cumsum(need.astype(jnp.int32)) - 1
-  in_full_chunks = rank < jnp.sum(need.astype(jnp.int32)) // chunk * chunk
+  in_full_chunks = rank < (rank[-1] + 1) // chunk * chunk
   state, _ = _plan_robots(config, world, params, state, need & in_full_chunks, 0, chunk)
   state, _ = _plan_robots(config, world, params, state, need & ~in_full_chunks, 0, 1)
   return state
