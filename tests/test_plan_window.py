@@ -109,7 +109,7 @@ def test_plan_where_needed_with_a_window_plans_like_the_whole_grid(explored):
 def test_episode_with_a_window_completes_like_the_whole_grid():
   grid = generate.office(14.0, 10.0, 0.1, seed=3)
   params = make_params("li2020", res=grid.res, r_max=1.5, fov=2 * np.pi)
-  config = config_for(grid.shape, grid.res, params, max_steps=2500, replan_every=4)
+  config = config_for(grid.shape, grid.res, params, max_steps=2000, replan_every=4)
   world = sim.make_world(grid, float(params.r_robot))
   params = sim.broadcast_params(params, 2)
   keys = jax.random.split(jax.random.PRNGKey(1), 2)
