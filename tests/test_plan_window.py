@@ -125,11 +125,11 @@ def test_auto_window_follows_the_sensor_range_up_to_the_plan_reach():
   assert plan_reach_cells(35, 0.1) == 35  # Explore-Bench: 3.5 m at 0.1 m
   assert plan_reach_cells(150, 0.1) == 35  # a 15 m lidar: capped at PLAN_REACH_M
   assert plan_reach_cells(75, 0.2) == 18
-  assert auto_plan_window(250, 250, 35, 1) == 96
+  assert auto_plan_window(250, 250, 35, 1) == 88  # Explore-Bench
   assert auto_plan_window(200, 200, 35, 2) == 96  # `open` with the li2020 preset
   assert auto_plan_window(130, 170, 35, 2) == 96  # `lab`: the window has 0.42 of its cells
   assert auto_plan_window(120, 120, 35, 2) == 0  # the window would have over half the grid
-  assert auto_plan_window(160, 240, 15, 2) == 64
+  assert auto_plan_window(160, 240, 15, 2) == 56
   params = make_params("li2020")
   assert config_for((200, 200), 0.1, params).plan_window == 96
   assert config_for((200, 200), 0.1, params.replace(r_max=2.0)).plan_window == 64
