@@ -72,7 +72,7 @@ def main(argv=None):
     rows.append((planner, window, compile_s, per_round, per_round / args.robots * 1e3))
     print(f"{planner:17s} window {window!s:4s} compile {compile_s:6.1f} s   {per_round * 1e3:8.1f} ms per round   "
           f"{per_round / args.robots * 1e3:6.2f} ms per robot", flush=True)
-  base = rows[1][3]  # nearest frontier on the whole grid
+  base = next(r for p, w, _, r, _ in rows if p == "nearest_frontier" and w == "off")
   table = ["| planner | plan window | compile s | ms per planning round | ms per robot | vs nearest frontier on the whole grid |",
            "|---|---|---|---|---|---|"]
   table += [f"| {p} | {w} | {c:.1f} | {r * 1e3:.1f} | {m:.2f} | {r / base:.2f}x |" for p, w, c, r, m in rows]
