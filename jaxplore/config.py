@@ -39,7 +39,7 @@ class SimConfig:
       (it always replans when its path is done).
     max_steps: the step budget of an episode (``timeout`` after it).
     planner: registry name of the planner.
-    pose_noise: corrupt odometry and dead-reckon the estimate (SPEC §1); when False the estimate
+    pose_noise: corrupt odometry and dead-reckon the estimate; when False the estimate
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
     max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
@@ -107,7 +107,7 @@ class Params:
   scalars, so every planner can add its own without the simulator knowing them).
   """
 
-  # lidar (SPEC §1)
+  # lidar
   r_max: Any = 15.0  # max range, m
   fov: Any = math.radians(190.0)  # field of view, rad
   range_noise: Any = 0.0  # std of Gaussian range noise, m
@@ -126,7 +126,7 @@ class Params:
   w_max: Any = 1.0  # rad/s
   dt: Any = 0.4  # s
   r_robot: Any = 0.2  # m
-  # localisation (Li Eq 16-17 and SPEC §1)
+  # localisation (Li Eq 16-17; relocalisation by a Kalman update)
   sigma_d: Any = 1.0
   sigma_phi: Any = 1.0
   sigma0: Any = 1e-4  # initial pose covariance, diag, m² and rad²
