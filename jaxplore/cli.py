@@ -102,25 +102,20 @@ def _spec_flags(args, extra, planners) -> dict:
 def _run(args, extra) -> int:
   """``jaxplore run``: flags (and ``--config``) -> :func:`jaxplore.runner.run`."""
   from jaxplore.config import ConfigError
-  from jaxplore.runspec import SWEEP_ONLY, TOML_KEYS, RunSpec, read_toml, settings_from_toml
-  from jaxplore.sweeps.settings import merge_config
+  from jaxplore.runspec import RunSpec, load_run_config, merge_settings
 
   def compute():
-    from_file = {}
-    if args.config is not None:
-      data, where = read_toml(args.config)
-      allowed = tuple(k for k in TOML_KEYS if k not in SWEEP_ONLY)
-      from_file = settings_from_toml(
-          {k: v for k, v in data.items() if k not in ("world", "planner")}, where, allowed)
-      for key in ("world", "planner"):
-        if key in data:
-          if not isinstance(data[key], str):
-            raise ConfigError(f"{where}: {key} must be a name, got {data[key]!r}")
-          from_file[key] = data[key]
+    from_file = {} if args.config is None else load_run_config(args.config)
     planner = args.planner or from_file.get("planner") or RunSpec.planner
+    robot_seeds = None
+    if args.robot_seeds is not None:
+      try:
+        robot_seeds = [int(v) for v in args.robot_seeds.split(",") if v.strip()]
+      except ValueError:
+        raise ConfigError(f"--robot-seeds takes integers like 0,3,7, got {args.robot_seeds!r}") from None
     explicit = dict(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
-                    **_spec_flags(args, extra, [planner]))
-    settings = merge_config(from_file, explicit)
+                    robot_seeds=robot_seeds, **_spec_flags(args, extra, [planner]))
+    settings = merge_settings(from_file, explicit)
     _set_devices(settings.get("devices"))  # before JAX starts
     from jaxplore.runner import run
     out, devices = settings.pop("out"), settings.pop("devices")
@@ -225,6 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--planner", default=None, help=f"planner (default {RunSpec.planner})")
   run.add_argument("--robots", type=int, default=None, help=f"batch size (default {RunSpec.robots})")
   run.add_argument("--seed", type=int, default=None, help=f"PRNG seed (default {RunSpec.seed})")
+  run.add_argument("--robot-seeds", default=None, metavar="S1,S2,...",
+                   help="one PRNG seed per robot instead of --seed (robot b starts as seed b does "
+                   "in a sweep)")
   run.add_argument("--out", default=None, help="results folder")
   _add_spec_flags(run)
 

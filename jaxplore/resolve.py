@@ -12,7 +12,6 @@ of rows once and runs it chunk by chunk, ``jaxplore animate`` replays a few robo
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import NamedTuple, Sequence
 
 import jax
@@ -200,7 +199,7 @@ def resolve(spec: RunSpec) -> Resolved:
   """
   planner = get_planner(spec.planner)
   grid = load_grid(spec)
-  weights, settings = split_planner_params(spec.planner, spec.planner_params)
+  settings = split_planner_params(spec.planner, spec.planner_params)[1]
   params = build_params(spec.planner, spec.preset, grid.res, dict(spec.params),
                         dict(spec.planner_params))
   defaults = planner_settings_of(planner)

@@ -212,11 +212,16 @@ class RunSpec:
 
   @classmethod
   def create(cls, **settings) -> RunSpec:
-    """A spec from keyword settings, where None means "the default" (what the CLI passes)."""
+    """A spec from keyword settings, where None means "the default" (what the CLI passes);
+    ``robot_seeds`` without ``robots`` gives one robot per seed."""
     unknown = sorted(set(settings) - set(FIELDS))
     if unknown:
       raise ConfigError(f"unknown setting(s) {unknown}; valid: {', '.join(FIELDS)}")
-    return cls(**{k: v for k, v in settings.items() if v is not None})
+    settings = {k: v for k, v in settings.items() if v is not None}
+    seeds = settings.get("robot_seeds")
+    if "robots" not in settings and hasattr(seeds, "__len__") and not isinstance(seeds, str):
+      settings["robots"] = len(seeds)  # one robot per seed
+    return cls(**settings)
 
   def to_json(self, fields=None) -> dict:
     """The JSON form (``config.json``, a sweep's schedule); a GridMap world is named, not stored."""
@@ -283,6 +288,7 @@ TOML_KEYS = {
     "planners": "a list of planners (sweep)",
     "robots": "batch size (run)",
     "seed": "PRNG seed of the batch (run)",
+    "robot_seeds": "one PRNG seed per robot, instead of seed (run)",
     "seeds": "number of seeds, or a list of seeds (sweep)",
     "preset": "sensor/robot preset",
     "res": "planning resolution, m/cell",
@@ -302,8 +308,9 @@ TOML_KEYS = {
     "set": "[set] table: simulator parameters",
     "planner_set": "[planner_set] table: planner weights and settings",
 }
-RUN_ONLY = ("robots", "seed")
+RUN_ONLY = ("robots", "seed", "robot_seeds")
 SWEEP_ONLY = ("worlds", "planners", "seeds", "chunk_size", "grid", "random")
+RUN_TOML_KEYS = tuple(k for k in TOML_KEYS if k not in SWEEP_ONLY)
 
 
 def read_toml(path) -> tuple[dict, str]:
@@ -369,6 +376,9 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
     kwargs["plan_window"] = value
   if "seed" in data:
     kwargs["seed"] = seed_value(typed("seed", int, "an integer"), f"{where}: seed")
+  if "robot_seeds" in data:
+    kwargs["robot_seeds"] = [seed_value(s, f"{where}: a robot seed")
+                             for s in typed("robot_seeds", list, "a list of seeds")]
   if "pose_noise" in data:
     kwargs["pose_noise"] = typed("pose_noise", bool, "true or false")
   if "start" in data:
@@ -381,6 +391,34 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
   return kwargs
 
 
+def merge_settings(from_file: dict, explicit: dict) -> dict:
+  """Settings of a TOML file under explicit ones: an explicit value (not None) wins; tables
+  (grid, random, params, planner_params) merge name by name, explicit names winning."""
+  merged = dict(explicit)
+  for key, value in from_file.items():
+    mine = merged.get(key)
+    if key in ("grid", "random", "params", "planner_params"):
+      merged[key] = {**value, **(mine or {})}
+    elif mine is None:
+      merged[key] = value
+  return merged
+
+
+def load_run_config(path) -> dict:
+  """Reads a run's TOML file (the keys of :data:`RUN_TOML_KEYS`) into keyword settings of
+  :func:`jaxplore.run` (``out`` and ``devices`` included), validated key by key."""
+  data, where = read_toml(path)
+  kwargs = settings_from_toml({k: v for k, v in data.items() if k not in ("world", "planner")},
+                              where, RUN_TOML_KEYS)
+  for key in ("world", "planner"):
+    if key in data:
+      if not isinstance(data[key], str):
+        raise ConfigError(f"{where}: {key} must be a name, got {data[key]!r}")
+      kwargs[key] = data[key]
+  return kwargs
+
+
 __all__ = ["RunSpec", "FIELDS", "SHARED", "AXES", "STATIC_PARAMS", "SIM_PARAMS", "TOML_KEYS",
-           "kind_of", "is_static", "number", "parse_start", "positive_int", "read_toml",
+           "RUN_TOML_KEYS", "kind_of", "is_static", "load_run_config", "merge_settings", "number", "parse_start",
+           "positive_int", "read_toml",
            "seed_value", "settings_from_toml", "planner_settings_of"]

@@ -303,6 +303,8 @@ def test_a_folder_holding_another_sweep_or_other_files_is_refused(reference, tmp
   (busy / "notes.txt").write_text("mine")
   with pytest.raises(ConfigError, match="not empty and holds no sweep schedule"):
     jaxplore.sweep(GRID, seeds=2, out=busy, **SETTINGS)
+  with pytest.raises(ConfigError, match="is a file"):
+    jaxplore.sweep(GRID, seeds=2, out=busy / "notes.txt", **SETTINGS)
 
 
 def test_memory_guard_shrinks_a_chunk_or_refuses_with_the_numbers(monkeypatch, capsys):

@@ -35,12 +35,11 @@ import pandas as pd
 from jaxplore import driver, results
 from jaxplore.config import ConfigError
 from jaxplore.memory import MEMORY_FRACTION, fit_chunk
-from jaxplore.runspec import SHARED, RunSpec
+from jaxplore.runspec import SHARED, RunSpec, merge_settings
 from jaxplore.sweeps import assemble, execute, schedule as schedules
 from jaxplore.sweeps.assemble import sweep_table
 from jaxplore.sweeps.schedule import LEGACY_FILE, SCHEDULE_FILE, first_difference, read_schedule
-from jaxplore.sweeps.settings import (SweepSpec, load_config, make_spec, merge_config,
-                                      parse_random_spec)
+from jaxplore.sweeps.settings import SweepSpec, load_config, make_spec, parse_random_spec
 
 RUN_KEYS = SHARED  # the run settings a sweep's rows share (sweep(**run_kwargs))
 
@@ -131,7 +130,7 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
                   samples=samples, random_seed=random_seed, chunk_size=chunk_size, devices=devices,
                   out=out, **run_kwargs)
   if config is not None:
-    explicit = merge_config(config if isinstance(config, dict) else load_config(config), explicit)
+    explicit = merge_settings(config if isinstance(config, dict) else load_config(config), explicit)
   out = None if explicit["out"] is None else Path(explicit["out"])
 
   process, n_processes = execute.distributed() if distributed else (0, 1)

@@ -11,13 +11,13 @@ import dataclasses
 import hashlib
 import math
 import os
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
 from jaxplore.config import ConfigError
-from jaxplore.runspec import (AXES, SHARED, TOML_KEYS, RunSpec, kind_of, number, read_toml,
-                              seed_value, settings_from_toml)
+from jaxplore.runspec import (AXES, RUN_ONLY, SHARED, TOML_KEYS, RunSpec, kind_of, number,
+                              read_toml, seed_value, settings_from_toml)
 
 DEFAULT_SEEDS = 8  # seeds per setting when none are given
 
@@ -269,7 +269,7 @@ def make_spec(grid=None, random=None, samples=None, random_seed=None, seeds=None
 
 # --------------------------------------------------------------------------- TOML
 
-SWEEP_TOML_KEYS = tuple(k for k in TOML_KEYS if k not in ("robots", "seed"))
+SWEEP_TOML_KEYS = tuple(k for k in TOML_KEYS if k not in RUN_ONLY)
 
 
 def load_config(path) -> dict:
@@ -333,19 +333,6 @@ def load_config(path) -> dict:
   return kwargs
 
 
-def merge_config(from_file: dict, explicit: dict) -> dict:
-  """Settings of a TOML file under explicit ones: an explicit value (not None) wins; tables
-  (grid, random, params, planner_params) merge name by name, explicit names winning."""
-  merged = dict(explicit)
-  for key, value in from_file.items():
-    mine = merged.get(key)
-    if key in ("grid", "random", "params", "planner_params"):
-      merged[key] = {**value, **(mine or {})}
-    elif mine is None:
-      merged[key] = value
-  return merged
-
-
 __all__ = ["DEFAULT_SEEDS", "RandomRange", "SweepSpec", "WorldEntry", "f32", "load_config",
-           "make_spec", "merge_config", "normalise_grid", "normalise_random", "parse_random_spec",
+           "make_spec", "normalise_grid", "normalise_random", "parse_random_spec",
            "random_samples", "seeds_of", "world_entry", "SWEEP_TOML_KEYS", "AXES"]
