@@ -41,7 +41,8 @@ def main(argv=None):
   states = None
   for planner, whole_grid in (("nearest_frontier", False), ("nearest_frontier", True), ("li2020", False)):
     resolved = resolve(RunSpec(world=args.world, planner=planner, robots=args.robots,
-                               max_steps=args.warm_steps + 8, plan_window=0 if whole_grid else None))
+                               max_steps=args.warm_steps + 8,
+                               plan_window=0 if whole_grid else None))
     config, params, world = resolved.config, resolved.params, resolved.world
     window = config.plan_window if sim.uses_window(config) else "off"
     params_b = sim.broadcast_params(params, args.robots)

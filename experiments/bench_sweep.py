@@ -9,7 +9,7 @@ versus the same settings run one at a time through ``jaxplore.run``, side by sid
   so different static configs) each run as ``jaxplore.run(robots=1)``, cold then warm; the other
   settings are **extrapolated** from them: in one Python process a static config compiles once and is then
   cached (alpha fixes a static bound, so the 256 settings need one compile per distinct config:
-  counted exactly with ``jaxplore.resolve.resolve``), while separate ``jaxplore run`` commands compile every
+  counted exactly with ``resolve``), while separate ``jaxplore run`` commands compile every
   time (process start-up not counted).
 
 Compiles are counted, and their seconds summed, with a ``jax.monitoring`` listener on XLA backend

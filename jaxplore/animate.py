@@ -177,7 +177,8 @@ def _sweep_setup(run_dir: Path, robots) -> _Setup:
   from jaxplore.sweeps import schedule as schedules
   made = schedules.read_schedule(run_dir, action="animate")
   robots = parse_robots(robots, made.rows)
-  where = {row.row: (g, k) for g, group in enumerate(made.groups) for k, row in enumerate(group.rows)}
+  where = {row.row: (g, k)
+           for g, group in enumerate(made.groups) for k, row in enumerate(group.rows)}
   chosen = {where[r][0] for r in robots}
   if len(chosen) > 1:
     def label(r):

@@ -56,7 +56,8 @@ def _parameter_flags(extra, planners):
       weights = sorted({w for spec in specs for w in spec.defaults})
       raise ConfigError(f"unrecognized argument --{name}: not an option, a simulator "
                         f"parameter ({', '.join(SIM_PARAMS)}) nor a weight of planner "
-                        f"{' or '.join(repr(p) for p in planners)} ({', '.join(weights) or 'none'})")
+                        f"{' or '.join(repr(p) for p in planners)} "
+                        f"({', '.join(weights) or 'none'})")
     try:
       target[name] = float(value)
     except ValueError:
@@ -112,7 +113,8 @@ def _run(args, extra) -> int:
       try:
         robot_seeds = [int(v) for v in args.robot_seeds.split(",") if v.strip()]
       except ValueError:
-        raise ConfigError(f"--robot-seeds takes integers like 0,3,7, got {args.robot_seeds!r}") from None
+        raise ConfigError(f"--robot-seeds takes integers like 0,3,7, "
+                          f"got {args.robot_seeds!r}") from None
     explicit = dict(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
                     robot_seeds=robot_seeds, **_spec_flags(args, extra, [planner]))
     settings = merge_settings(from_file, explicit)
@@ -183,14 +185,17 @@ def _add_spec_flags(p):
   from jaxplore.runspec import RunSpec
   p.add_argument("--preset", default=None, help=f"sensor/robot preset (default {RunSpec.preset})")
   p.add_argument("--res", type=float, default=None, help="planning resolution, m/cell")
-  p.add_argument("--start", default=None, help="x,y[,theta] start for every robot (default: random)")
+  p.add_argument("--start", default=None,
+                 help="x,y[,theta] start for every robot (default: random)")
   p.add_argument("--max-steps", type=int, default=None,
                  help="step budget per robot (default: from the world's free area)")
   p.add_argument("--replan-every", type=int, default=None,
-                 help="steps between planning rounds of a robot on its path (default: the preset's)")
+                 help="steps between planning rounds of a robot on its path "
+                 "(default: the preset's)")
   p.add_argument("--path-capacity", type=int, default=None, help="waypoints a path may hold")
   p.add_argument("--plan-window", type=int, default=None, metavar="CELLS",
-                 help="window nearest frontier plans on first (0: whole grid; default from the range)")
+                 help="window nearest frontier plans on first (0: whole grid; default from the "
+                 "range)")
   p.add_argument("--pose-noise", action="store_true", default=None,
                  help="noisy odometry, drifting estimate")
   p.add_argument("--rate-interval", type=float, default=None,
@@ -198,10 +203,12 @@ def _add_spec_flags(p):
   p.add_argument("--chunk-epochs", type=int, default=None,
                  help="planning rounds per compiled call (progress granularity)")
   p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                 help="a simulator parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 --k1 0.2)")
+                 help="a simulator parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 "
+                 "--k1 0.2)")
   p.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
                  help="a planner weight or setting")
-  p.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
+  p.add_argument("--devices", type=int, default=None,
+                 help="host devices to shard over (default: cores)")
   p.add_argument("--no-progress", action="store_true")
 
 
@@ -218,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--world", default=None,
                    help=f"built-in world name or map_server YAML path (default {RunSpec.world})")
   run.add_argument("--planner", default=None, help=f"planner (default {RunSpec.planner})")
-  run.add_argument("--robots", type=int, default=None, help=f"batch size (default {RunSpec.robots})")
+  run.add_argument("--robots", type=int, default=None,
+                   help=f"batch size (default {RunSpec.robots})")
   run.add_argument("--seed", type=int, default=None, help=f"PRNG seed (default {RunSpec.seed})")
   run.add_argument("--robot-seeds", default=None, metavar="S1,S2,...",
                    help="one PRNG seed per robot instead of --seed (robot b starts as seed b does "
@@ -234,9 +242,11 @@ def build_parser() -> argparse.ArgumentParser:
       "interrupted sweep. Flags given here win over the --config file.")
   sw.add_argument("--config", default=None, metavar="TOML", help="sweep settings from a TOML file")
   sw.add_argument("--resume", default=None, metavar="DIR",
-                  help="finish the interrupted sweep in DIR (every setting comes from its schedule)")
+                  help="finish the interrupted sweep in DIR (every setting comes from its "
+                  "schedule)")
   sw.add_argument("--world", nargs="+", default=None, metavar="WORLD",
-                  help=f"one or more worlds: names or map_server YAML paths (default {RunSpec.world})")
+                  help=f"one or more worlds: names or map_server YAML paths "
+                  f"(default {RunSpec.world})")
   sw.add_argument("--planner", nargs="+", default=None, metavar="PLANNER",
                   help=f"one or more planners (default {RunSpec.planner})")
   sw.add_argument("--grid", nargs="+", default=None, metavar="NAME=V1,V2,...",

@@ -27,7 +27,8 @@ COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 
 
 def default_chunk_epochs(config: SimConfig) -> int:
-  """Planning rounds per compiled call: about 500 steps, the granularity of progress and early stop."""
+  """Planning rounds per compiled call: about 500 steps, the granularity of progress and early
+  stop."""
   return max(1, min(config.n_epochs, 2000 // config.replan_every // 4 or 1))
 
 
@@ -58,7 +59,8 @@ def compiled_advance(config: SimConfig, n_epochs: int, n_devices: int):
 
 
 def reset(config: SimConfig, world: sim.World, batch) -> sim.State:
-  """The batch at its starts, after the first scan (``batch``: a :class:`jaxplore.resolve.Batch`)."""
+  """The batch at its starts after the first scan (``batch``: a
+  :class:`jaxplore.resolve.Batch`)."""
   state = sim.reset_batch(config, world, batch.params, batch.keys, batch.starts)
   return jax.block_until_ready(state)
 

@@ -58,17 +58,17 @@ def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = F
   one = estimate_bytes(config, 1)
   if one > budget:
     raise ConfigError(
-        f"one robot on a {config.height}x{config.width} grid with max_steps={config.max_steps} needs "
-        f"about {_gib(one)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available; use a "
-        f"coarser --res or fewer --max-steps")
+        f"one robot on a {config.height}x{config.width} grid with max_steps={config.max_steps} "
+        f"needs about {_gib(one)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available; "
+        f"use a coarser --res or fewer --max-steps")
   need = estimate_bytes(config, requested)
   if need <= budget:
     return requested
   if fixed:
     raise ConfigError(
-        f"the schedule's chunks of {requested} robots on a {config.height}x{config.width} grid need "
-        f"about {_gib(need)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available now; "
-        f"free some memory and resume again")
+        f"the schedule's chunks of {requested} robots on a {config.height}x{config.width} grid "
+        f"need about {_gib(need)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available "
+        f"now; free some memory and resume again")
   lo, hi = 1, requested  # estimate_bytes grows with robots: the largest lo that fits
   while lo < hi:
     mid = (lo + hi + 1) // 2
@@ -77,8 +77,8 @@ def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = F
     else:
       hi = mid - 1
   chunk = lo - lo % n_dev if lo >= n_dev else lo
-  print(f"jaxplore: a chunk of {requested} robots on a {config.height}x{config.width} grid needs about "
-        f"{_gib(need)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available; "
+  print(f"jaxplore: a chunk of {requested} robots on a {config.height}x{config.width} grid needs "
+        f"about {_gib(need)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available; "
         f"running chunks of {chunk} robots instead", file=sys.stderr)
   return chunk
 

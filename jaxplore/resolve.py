@@ -136,7 +136,8 @@ def _coerce_setting(planner: str, name: str, value, default):
   """A static planner setting cast to the type of its default (settings are ints, floats, bools)."""
   if isinstance(default, bool):
     if value not in (0, 1, True, False):
-      raise ConfigError(f"planner {planner!r}: setting {name} is true or false (1 or 0), got {value!r}")
+      raise ConfigError(f"planner {planner!r}: setting {name} is true or false (1 or 0), "
+                        f"got {value!r}")
     return bool(value)
   if isinstance(default, int):
     if float(value) != int(value):

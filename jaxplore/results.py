@@ -81,7 +81,8 @@ def summary_table(episodes: pd.DataFrame) -> str:
                     ("t90_s", "s"), ("t99_s", "s")):
     if col in episodes:
       v = episodes[col].astype(float)
-      lines.append(f"  {col:<18} {v.mean():12.4g} ± {v.std():<10.4g} {unit}  (min {v.min():.4g}, max {v.max():.4g})")
+      lines.append(f"  {col:<18} {v.mean():12.4g} ± {v.std():<10.4g} {unit}  "
+                   f"(min {v.min():.4g}, max {v.max():.4g})")
   return "\n".join(lines)
 
 

@@ -94,7 +94,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
 
   def show(rec, done):
     bar.update(min(rec.done.shape[0], config.max_steps - bar.n))
-    bar.set_postfix(done=f"{int(done.sum())}/{robots}", coverage=f"{float(rec.coverage[-1].mean()):.3f}")
+    bar.set_postfix(done=f"{int(done.sum())}/{robots}",
+                    coverage=f"{float(rec.coverage[-1].mean()):.3f}")
 
   try:
     rollout = driver.drive(compiled, world, batch.params, state, config.max_steps,

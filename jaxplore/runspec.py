@@ -178,7 +178,8 @@ class RunSpec:
         raise ConfigError(f"robot_seeds has {len(seeds)} seeds for {self.robots} robots")
       put("robot_seeds", seeds)
     if self.preset is not None and self.preset not in PRESETS:
-      raise ConfigError(f"unknown preset {self.preset!r}; valid presets: {', '.join(sorted(PRESETS))}")
+      raise ConfigError(f"unknown preset {self.preset!r}; valid presets: "
+                        f"{', '.join(sorted(PRESETS))}")
     if self.res is not None:
       res = number(self.res, "res")
       if res <= 0:
@@ -387,7 +388,8 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
     kwargs["out"] = typed("out", str, "a folder path")
   for key, target in (("set", "params"), ("planner_set", "planner_params")):
     if key in data:
-      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}") for name, v in table(key).items()}
+      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}")
+                        for name, v in table(key).items()}
   return kwargs
 
 
@@ -419,6 +421,7 @@ def load_run_config(path) -> dict:
 
 
 __all__ = ["RunSpec", "FIELDS", "SHARED", "AXES", "STATIC_PARAMS", "SIM_PARAMS", "TOML_KEYS",
-           "RUN_TOML_KEYS", "kind_of", "is_static", "load_run_config", "merge_settings", "number", "parse_start",
+           "RUN_TOML_KEYS", "kind_of", "is_static", "load_run_config",
+           "merge_settings", "number", "parse_start",
            "positive_int", "read_toml",
            "seed_value", "settings_from_toml", "planner_settings_of"]

@@ -114,7 +114,8 @@ def test_sweep_robots_of_different_groups_are_refused(sweep_dir, tmp_path):
   shutil.copytree(sweep_dir, copy)
   made = json.loads((copy / sweeps.SCHEDULE_FILE).read_text())
   group = made["groups"][0]
-  made["groups"] = [dict(group, rows=group["rows"][:1]), dict(group, planner="frt", rows=group["rows"][1:])]
+  made["groups"] = [dict(group, rows=group["rows"][:1]),
+                    dict(group, planner="frt", rows=group["rows"][1:])]
   (copy / sweeps.SCHEDULE_FILE).write_text(json.dumps(made))
   with pytest.raises(ConfigError, match="different world x planner groups.*robot 1: tiny_office / frt"):
     animate.resimulate(copy, (0, 1), progress=False)

@@ -109,7 +109,8 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_the_scan_sees_the_package():
   # The graph is not vacuous: the host layer's known edges are there.
-  assert {"jaxplore.runner", "jaxplore.sweeps", "jaxplore.resolve", "jaxplore.sweeps.schedule"} <= set(GRAPH)
+  assert {"jaxplore.runner", "jaxplore.sweeps", "jaxplore.resolve",
+          "jaxplore.sweeps.schedule"} <= set(GRAPH)
   assert "jaxplore.resolve" in GRAPH["jaxplore.runner"][0]
   assert "jaxplore.driver" in GRAPH["jaxplore.sweeps.execute"][0]
   assert "jaxplore.sweeps" in GRAPH["jaxplore.runner"][0]  # a function-level import counts

@@ -104,7 +104,8 @@ def test_run_config_file_and_flags(tmp_path, monkeypatch):
   assert seen["max_steps"] == 9 and seen["rate_interval"] == 2.0 and seen["chunk_epochs"] == 4
   assert seen["params"] == {"r_max": 4.0, "alpha": 1.25}
   assert seen["planner_params"] == {"k1": 0.1, "k2": 0.8}
-  spec = RunSpec.create(**{k: v for k, v in seen.items() if k not in ("out", "devices", "progress")})
+  spec = RunSpec.create(**{k: v for k, v in seen.items()
+                           if k not in ("out", "devices", "progress")})
   assert spec.robots == 2 and spec.plan_window == 0
   bad = tmp_path / "bad.toml"
   bad.write_text("grid = 3\n")

@@ -137,6 +137,25 @@ def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkey
   pd.testing.assert_frame_equal(again.episodes, _tables(ref_out)[0])
 
 
+def test_a_folder_of_the_older_layout_resumes(reference, tmp_path):
+  """Folders written before the schedule was renamed hold ``sweep_plan.json`` (its run settings
+  without the newer ones): they resume into the same tables."""
+  _, ref_out, _ = reference
+  old = tmp_path / "old"
+  shutil.copytree(ref_out, old)
+  made = json.loads((old / sweeps.SCHEDULE_FILE).read_text())
+  made["format"] = "jaxplore-sweep-plan"
+  del made["spec"]["run"]["plan_window"]
+  (old / sweeps.LEGACY_FILE).write_text(json.dumps(made))
+  (old / sweeps.SCHEDULE_FILE).unlink()
+  for path in [old / "episodes.parquet", old / "curves.parquet", *old.glob("chunks/chunk_00002*")]:
+    path.unlink()
+  resumed = jaxplore.sweep(resume=old, progress=False, quiet=True, devices=1)
+  assert resumed.timing["chunks_run"] == 1 and resumed.timing["chunks_skipped"] == 2
+  for mine, theirs in zip(_tables(old), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs)
+
+
 KILLABLE = textwrap.dedent("""
     # jaxplore sweep, with the second chunk held back so that SIGKILL lands while it is pending
     import sys, time

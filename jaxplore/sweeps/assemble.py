@@ -26,7 +26,8 @@ def figure_names(episodes: pd.DataFrame, names) -> list[str]:
   return keys or ["planner"]
 
 
-def read_tables(schedule: Schedule, out: Path | None, tables: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
+def read_tables(schedule: Schedule, out: Path | None,
+                tables: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
   """(episodes, curves) of every row, in the schedule's order."""
   parts_e, parts_c = [], []
   for chunk in schedule.chunks():
@@ -75,7 +76,8 @@ def describe(schedule: Schedule, group_runs: list[GroupRun], episodes: pd.DataFr
                 "figure_names": figure_names(episodes, schedule.names)},
       "run": spec["run"],
       "groups": [group_config(g) for g in group_runs],
-      "jaxplore_version": __version__, "jax_version": jax.__version__, "numpy_version": np.__version__,
+      "jaxplore_version": __version__, "jax_version": jax.__version__,
+      "numpy_version": np.__version__,
       "python": platform.python_version(), "devices": [str(d) for d in jax.local_devices()],
       "processes": n_processes,
   }

@@ -64,7 +64,8 @@ def run_chunk(group_run: GroupRun, chunk: Chunk, n_dev: int, tally: dict, times:
   return episodes, curves.reset_index(drop=True), rollout.state
 
 
-def label_episodes(episodes: pd.DataFrame, group_run: GroupRun, chunk: Chunk, all_names) -> pd.DataFrame:
+def label_episodes(episodes: pd.DataFrame, group_run: GroupRun, chunk: Chunk,
+                   all_names) -> pd.DataFrame:
   """The chunk's episodes with ``world``, ``planner``, ``seed`` and one column per swept name
   (NaN where the group's planner does not have it)."""
   group = group_run.group
@@ -134,7 +135,8 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
       if out is not None:
         paths = chunk_paths(out, chunk.index)
         if chunk.index == group.first_chunk:
-          results.write_maps(paths["maps"], group_run.resolved.grid, state.logodds[:len(chunk.rows)])
+          results.write_maps(paths["maps"], group_run.resolved.grid,
+                             state.logodds[:len(chunk.rows)])
           results.write_memory(paths["memory"], getattr(state, "memory", None),
                                min(results.SHOWN_ROBOTS, len(chunk.rows)))
         results.write_table(paths["curves"], curves)
@@ -159,7 +161,8 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
             "chunks_run": len(work), "chunks_skipped": schedule.n_chunks - len(work),
             "robot_episodes": schedule.rows, "robot_episodes_run": ran_rows,
             "sharded_over": sharded_over,
-            "robot_episodes_per_hour": ran_rows / wall * 3600 if wall > 0 and ran_rows else float("nan")}
+            "robot_episodes_per_hour": (ran_rows / wall * 3600 if wall > 0 and ran_rows
+                                        else float("nan"))}
   return tables, timing
 
 

@@ -268,7 +268,8 @@ def make_schedule(spec: SweepSpec, out: Path | None, grids: dict, chunk_size,
   return Schedule(spec, tuple(groups), chunk_size, __version__, jax.__version__), resolved
 
 
-def resolve_schedule(schedule: Schedule, out: Path | None, grids: dict, n_dev: int) -> list[Resolved]:
+def resolve_schedule(schedule: Schedule, out: Path | None, grids: dict,
+                     n_dev: int) -> list[Resolved]:
   """The groups of a written schedule, checked to resolve as they did when it was made and to
   fit in memory with its chunk sizes."""
   worlds: dict = {}

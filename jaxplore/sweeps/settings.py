@@ -136,8 +136,8 @@ def parse_random_spec(text: str) -> RandomRange:
 
 
 def normalise_random(random) -> dict[str, RandomRange]:
-  """Ranges from :class:`RandomRange`, ``{"low", "high", "log"}`` dicts, ``(low, high[, "log"|bool])``
-  or ``"LOW:HIGH[:log]"``, checked."""
+  """Ranges from :class:`RandomRange`, ``{"low", "high", "log"}`` dicts,
+  ``(low, high[, "log"|bool])`` or ``"LOW:HIGH[:log]"``, checked."""
   if random is None:
     return {}
   if not isinstance(random, Mapping):
@@ -172,8 +172,10 @@ def normalise_random(random) -> dict[str, RandomRange]:
   return out
 
 
-def random_samples(random: Mapping[str, RandomRange], samples: int, seed: int) -> list[tuple[float, ...]]:
-  """``samples`` points drawn uniformly (log-uniformly where ``log``) in the ranges of ``random``."""
+def random_samples(random: Mapping[str, RandomRange], samples: int,
+                   seed: int) -> list[tuple[float, ...]]:
+  """``samples`` points drawn uniformly (log-uniformly where ``log``) in the ranges of
+  ``random``."""
   rng = np.random.default_rng(int(seed))
   columns = []
   for spec in random.values():
@@ -188,7 +190,8 @@ def seeds_of(seeds) -> tuple[int, ...]:
   """``range(seeds)`` for a count, or the given list of distinct seeds in [0, 2**32)."""
   if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
     if seeds < 1:
-      raise ConfigError(f"seeds must be a positive number of seeds or a list of seeds, got {seeds!r}")
+      raise ConfigError(f"seeds must be a positive number of seeds or a list of seeds, "
+                        f"got {seeds!r}")
     return tuple(range(int(seeds)))
   if isinstance(seeds, (list, tuple)) and seeds:
     out = tuple(seed_value(s, "a seed") for s in seeds)
@@ -233,11 +236,12 @@ def make_spec(grid=None, random=None, samples=None, random_seed=None, seeds=None
   both = set(grid) & set(random)
   if both:
     raise ConfigError(f"parameter(s) {sorted(both)} are both in the grid and in the random search")
-  if random and (samples is None or isinstance(samples, bool) or not isinstance(samples, (int, np.integer))
-                 or samples < 1):
+  if random and (samples is None or isinstance(samples, bool)
+                 or not isinstance(samples, (int, np.integer)) or samples < 1):
     raise ConfigError(f"a random search needs samples = a positive integer, got {samples!r}")
   if samples is not None and not random:
-    raise ConfigError("samples is given but no parameter has a random range (--random NAME=LOW:HIGH)")
+    raise ConfigError("samples is given but no parameter has a random range "
+                      "(--random NAME=LOW:HIGH)")
   planners = [str(p) for p in _as_list(RunSpec.planner if planners is None else planners)]
   if not planners:
     raise ConfigError("a sweep needs at least one planner")
@@ -247,8 +251,9 @@ def make_spec(grid=None, random=None, samples=None, random_seed=None, seeds=None
   for name in list(grid) + list(random):
     if not any(kind_of(name, s) for s in specs.values()):
       weights = sorted({w for s in specs.values() for w in s.defaults})
-      raise ConfigError(f"cannot sweep {name!r}: not a simulator parameter nor a weight of planner "
-                        f"{' or '.join(repr(p) for p in planners)} ({', '.join(weights) or 'none'})")
+      raise ConfigError(f"cannot sweep {name!r}: not a simulator parameter nor a weight of "
+                        f"planner {' or '.join(repr(p) for p in planners)} "
+                        f"({', '.join(weights) or 'none'})")
   for what, values in (("params", base.params), ("planner_params", base.planner_params)):
     for name, value in values.items():
       if isinstance(value, tuple):
