@@ -16,7 +16,6 @@ and the rest of the path it is following at that moment (from its cell to its go
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import pandas as pd
 
 from jaxplore import results
 from jaxplore.config import ConfigError
-from jaxplore.resolve import resolve
+from jaxplore.resolve import config_difference, resolve
 from jaxplore.runspec import SIM_PARAMS, RunSpec
 
 MAX_FRAMES = 150  # default frame budget: --every is chosen so an animation has at most this many
@@ -132,15 +131,13 @@ def _legacy_spec(config: dict, episodes: pd.DataFrame, grid) -> RunSpec:
       planner_params=values(config["planner_params"]))
 
 
-def _check_config(resolved, recorded: dict, where: Path, config: dict):
+def _check_config(resolved, recorded: dict | None, where: Path, version: str):
   """Refuses to replay settings that resolve to another static config than the recorded one."""
-  now = json.loads(json.dumps(dataclasses.asdict(resolved.config)))
-  if recorded is not None and recorded != now:
-    from jaxplore.sweeps.schedule import first_difference
+  difference = config_difference(recorded, resolved.config)
+  if difference is not None:
     raise ConfigError(
-        f"{where} was written by jaxplore {config.get('jaxplore_version', '?')} and its settings "
-        f"resolve differently here ({first_difference(recorded, now)}): an animation would not "
-        f"show the recorded run")
+        f"{where} was written by jaxplore {version} and its settings resolve differently here "
+        f"({difference}): an animation would not show the recorded run")
 
 
 @dataclasses.dataclass
@@ -167,7 +164,8 @@ def _run_setup(run_dir: Path, config: dict, episodes: pd.DataFrame, robots) -> _
   else:
     spec = _legacy_spec(config, episodes, grid)
   resolved = resolve(spec)
-  _check_config(resolved, config["sim_config"], run_dir / "config.json", config)
+  _check_config(resolved, config["sim_config"], run_dir / "config.json",
+                config.get("jaxplore_version", "?"))
   return _Setup(robots, resolved, resolved.batch(robots))
 
 
@@ -190,7 +188,7 @@ def _sweep_setup(run_dir: Path, robots) -> _Setup:
   group = made.groups[chosen.pop()]
   resolved = schedules.resolve_group(made.spec, group, run_dir, {})
   _check_config(resolved, group.sim_config, schedules.schedule_path(run_dir),
-                {"jaxplore_version": made.jaxplore_version})
+                made.jaxplore_version)
   return _Setup(robots, resolved, resolved.batch([where[r][1] for r in robots]))
 
 

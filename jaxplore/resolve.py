@@ -12,6 +12,7 @@ of rows once and runs it chunk by chunk, ``jaxplore animate`` replays a few robo
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple, Sequence
 
 import jax
@@ -23,7 +24,7 @@ from jaxplore.config import (ConfigError, Params, SimConfig, config_for, make_pa
                              validate_params)
 from jaxplore.maps import GridMap, load_world
 from jaxplore.planners import get_planner
-from jaxplore.runspec import STATIC_PARAMS, RunSpec, kind_of, planner_settings_of
+from jaxplore.runspec import STATIC_PARAMS, RunSpec
 
 
 class Batch(NamedTuple):
@@ -47,8 +48,8 @@ class Resolved:
     spec: the specification it came from (with the world as given).
     grid: the truth map.
     config: the static config of the whole batch.
-    params: the traced parameters, each leaf a scalar or one value per robot.
-    settings: the planner's static settings (a frozen dataclass), or None.
+    params: the traced parameters, each leaf a scalar or one value per robot (the planner's
+      static settings are in ``config.planner_settings``).
     world: the device-side truth, reachable area and start area.
     start: the (x, y, θ) start pose of every robot, or None.
   """
@@ -57,7 +58,6 @@ class Resolved:
   grid: GridMap
   config: SimConfig
   params: Params
-  settings: object
   world: sim.World
   start: tuple[float, float, float] | None
 
@@ -102,8 +102,8 @@ class Resolved:
         "params": {k: to_json_number(v) for k, v in dataclasses.asdict(self.params).items()
                    if k != "planner"},
         "planner_params": {k: to_json_number(v) for k, v in self.params.planner.items()},
-        "planner_settings": (None if self.settings is None
-                             else dataclasses.asdict(self.settings)),
+        "planner_settings": (None if self.config.planner_settings is None
+                             else dataclasses.asdict(self.config.planner_settings)),
     }
 
 
@@ -111,6 +111,26 @@ def to_json_number(leaf):
   """A parameter leaf as JSON: a float, or a list of floats (one per robot)."""
   arr = np.asarray(leaf, np.float64)
   return float(arr) if arr.ndim == 0 else arr.tolist()
+
+
+def config_difference(recorded: dict | None, config: SimConfig) -> str | None:
+  """Where a recorded static config (``config.json``'s or a sweep schedule's ``sim_config``)
+  differs from ``config``, as ``field: A there, B now``; None when they agree. Records of older
+  versions are read as :func:`jaxplore.sim.config_from_dict` reads them; lengths in metres agree
+  to a relative 1e-9 (an older record kept R_e in cells)."""
+  if recorded is None:
+    return None
+  then = dataclasses.asdict(sim.config_from_dict(recorded))
+  now = dataclasses.asdict(config)
+  for name, value in now.items():
+    old = then.get(name)
+    if isinstance(value, float) and isinstance(old, (int, float)):
+      same = math.isclose(old, value, rel_tol=1e-9)
+    else:
+      same = old == value
+    if not same:
+      return f"{name}: {old!r} there, {value!r} now"
+  return None
 
 
 def default_max_steps(grid: GridMap, params: Params) -> int:
@@ -132,58 +152,34 @@ def _one_value(name: str, value):
   return value
 
 
-def _coerce_setting(planner: str, name: str, value, default):
-  """A static planner setting cast to the type of its default (settings are ints, floats, bools)."""
-  if isinstance(default, bool):
-    if value not in (0, 1, True, False):
-      raise ConfigError(f"planner {planner!r}: setting {name} is true or false (1 or 0), "
-                        f"got {value!r}")
-    return bool(value)
-  if isinstance(default, int):
-    if float(value) != int(value):
-      raise ConfigError(f"planner {planner!r}: setting {name} must be an integer, got {value!r}")
-    return int(value)
-  return type(default)(value) if default is not None else value
-
-
 def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
   """(traced weights, static settings) of ``planner_params`` for ``planner``: every name must be
-  one or the other."""
-  spec = get_planner(planner)
-  weights, settings = {}, {}
-  for name, value in planner_params.items():
-    kind = kind_of(name, spec)
-    if kind == "weight":
-      weights[name] = np.asarray(value, np.float32) if isinstance(value, tuple) else value
-    elif kind == "setting":
-      settings[name] = _one_value(name, value)
+  one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
+  weights, settings = get_planner(planner).split_overrides(planner_params)
+  weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v for k, v in weights.items()}
+  return weights, {k: _one_value(k, v) for k, v in settings.items()}
+
+
+def split_params(params) -> tuple[dict, dict]:
+  """(traced :class:`Params` overrides, static simulator settings) of ``params``: see
+  :data:`jaxplore.runspec.STATIC_PARAMS`."""
+  traced, static = {}, {}
+  for name, value in (params or {}).items():
+    if name in STATIC_PARAMS:
+      static[name] = float(_one_value(name, value))
     else:
-      known = sorted(spec.defaults)
-      fields = planner_settings_of(spec)
-      if fields is not None:
-        known += sorted(f.name for f in dataclasses.fields(fields))
-      raise ConfigError(f"planner {planner!r} has no parameter(s) [{name!r}]; it has: "
-                        f"{', '.join(known) or 'none'}")
-  return weights, settings
+      traced[name] = np.asarray(value, np.float32) if isinstance(value, tuple) else value
+  return traced, static
 
 
 def build_params(planner: str, preset, res: float, params=None, planner_params=None) -> Params:
   """The traced :class:`Params` of a batch: the preset, the simulator parameters and the
-  planner's default weights with the given ones (static names are left out). No validation of
+  planner's default weights with the given ones (static names are left out: they go to the
+  ``SimConfig``). Leaves are scalars, or arrays with one value per robot. No validation of
   values."""
   weights = dict(get_planner(planner).defaults)
   weights.update(split_planner_params(planner, planner_params or {})[0])
-  traced = {}
-  for name, value in (params or {}).items():
-    if name in STATIC_PARAMS and name not in _PARAM_NAMES:
-      continue  # a static setting: it goes to the SimConfig
-    if name in STATIC_PARAMS:
-      value = _one_value(name, value)
-    traced[name] = np.asarray(value, np.float32) if isinstance(value, tuple) else value
-  return make_params(preset, res=res, planner=weights, **traced)
-
-
-_PARAM_NAMES = frozenset(f.name for f in dataclasses.fields(Params))
+  return make_params(preset, res=res, planner=weights, **split_params(params)[0])
 
 
 def load_grid(spec: RunSpec) -> GridMap:
@@ -200,15 +196,11 @@ def resolve(spec: RunSpec) -> Resolved:
   """
   planner = get_planner(spec.planner)
   grid = load_grid(spec)
-  settings = split_planner_params(spec.planner, spec.planner_params)[1]
   params = build_params(spec.planner, spec.preset, grid.res, dict(spec.params),
                         dict(spec.planner_params))
-  defaults = planner_settings_of(planner)
-  settings_value = (None if defaults is None
-                    else dataclasses.replace(defaults, **{
-                        k: _coerce_setting(spec.planner, k, v, getattr(defaults, k))
-                        for k, v in settings.items()}))
-  overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise)
+  settings = planner.resolve_settings(split_planner_params(spec.planner, spec.planner_params)[1])
+  overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise, planner_settings=settings,
+                   **split_params(spec.params)[1])
   for name in ("replan_every", "path_capacity", "plan_window"):
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)
@@ -217,11 +209,12 @@ def resolve(spec: RunSpec) -> Resolved:
                       **overrides)
   validate_params(params, config)
   if planner.validate is not None:
-    planner.validate({k: np.asarray(v) for k, v in params.planner.items()}, params, config)
+    planner.validate({k: np.asarray(v) for k, v in params.planner.items()}, params,
+                     sim.planner_context(config))
   world = sim.make_world(grid, float(np.max(np.asarray(params.r_robot))),
                          None if spec.start is None else spec.start[:2])
-  return Resolved(spec, grid, config, params, settings_value, world, spec.start)
+  return Resolved(spec, grid, config, params, world, spec.start)
 
 
-__all__ = ["Batch", "Resolved", "build_params", "default_max_steps", "load_grid", "resolve",
-           "split_planner_params", "to_json_number"]
+__all__ = ["Batch", "Resolved", "build_params", "config_difference", "default_max_steps", "load_grid", "resolve",
+           "split_params", "split_planner_params", "to_json_number"]

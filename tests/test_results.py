@@ -1,14 +1,20 @@
-"""Results folders: atomic writes, planner memory saved generically, ``--out`` checked before any
-compute."""
+"""Results folders: atomic writes, a planner's memory and static settings saved generically,
+``--out`` and seeds checked before any compute."""
 
+import dataclasses
 import json
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxplore
-from jaxplore import cli, results, runner
+from conftest import box_world
+from jaxplore import cli, results, runner, sweeps
 from jaxplore.config import ConfigError
+from jaxplore.planners import base, frontier
+from jaxplore.runspec import RunSpec
+from jaxplore.sweeps import schedule
 
 
 def test_atomic_write_leaves_no_temporary(tmp_path):
@@ -77,3 +83,57 @@ def test_cli_refuses_an_aliasing_seed_in_one_line(no_compute, capsys):
   assert cli.main(["run", "--world", "lab", "--seed", "4294967296", "--no-progress"]) == 2
   err = capsys.readouterr().err
   assert err.startswith("jaxplore: error: seed must be an integer in [0, 2**32)"), err
+
+
+@dataclasses.dataclass(frozen=True)
+class ProbeSettings:
+  plan_increment: int = 1
+
+
+def _init_memory(ctx, params):
+  return {"plans": jnp.int32(0)}
+
+
+def _plan_probe(ctx, view, robot, params, key, memory):
+  plan = frontier.plan_nearest_frontier(ctx, view, robot, params, key)
+  return plan, dict(memory, plans=memory["plans"] + ctx.settings.plan_increment)
+
+
+@pytest.fixture(scope="module")
+def probe():
+  """Nearest frontier that counts its plans (times a static setting) in a per-robot memory."""
+  base.register("host_probe", summary="test probe", settings=ProbeSettings(),
+                init_memory=_init_memory)(_plan_probe)
+  yield "host_probe"
+  base.unregister("host_probe")
+
+
+def test_a_planners_memory_and_settings_reach_the_results_folder(probe, tmp_path):
+  out = tmp_path / "probe"
+  result = jaxplore.run(world=box_world(30, 40), planner=probe, robots=2, max_steps=12,
+                        replan_every=3, params={"r_max": 1.2}, planner_params={"plan_increment": 3},
+                        out=out, progress=False, quiet=True, devices=1)
+  config = json.loads((out / "config.json").read_text())
+  assert config["planner_settings"] == {"plan_increment": 3}
+  assert config["sim_config"]["planner_settings"] == {"plan_increment": 3}
+  with np.load(out / "memory.npz") as saved:
+    assert saved.files == ["plans"]
+    plans = saved["plans"]
+  np.testing.assert_array_equal(plans, result.state.memory["plans"])
+  assert plans.shape == (2,) and (plans > 0).all() and (plans % 3 == 0).all()
+
+
+def test_a_swept_static_setting_makes_a_group_per_value(probe):
+  grids = {}  # the GridMap worlds of the sweep
+  spec = sweeps.make_spec({"plan_increment": [1, 3], "alpha": [1.0, 2.0]}, None, None, 0, [0, 1],
+                          box_world(30, 40), [probe, "nearest_frontier"],
+                          RunSpec(max_steps=12, params={"r_max": 1.2}), grids)
+  made, resolved = schedule.make_schedule(spec, None, grids, None, 1)
+  assert [(g.planner, g.names, len(g.rows)) for g in made.groups] == [
+      (probe, ("plan_increment", "alpha"), 4), (probe, ("plan_increment", "alpha"), 4),
+      ("nearest_frontier", ("alpha",), 4)]
+  assert [r.config.planner_settings for r in resolved[:2]] == [ProbeSettings(1), ProbeSettings(3)]
+  assert resolved[0].config != resolved[1].config  # two compiled programs
+  with pytest.raises(ConfigError, match="plan_increment fixes the compiled program"):
+    schedule.resolve_group(spec, dataclasses.replace(
+        made.groups[0], rows=made.groups[0].rows + made.groups[1].rows), None, grids)

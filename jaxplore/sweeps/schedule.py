@@ -26,7 +26,7 @@ from jaxplore import __version__, driver, memory
 from jaxplore.config import ConfigError
 from jaxplore.maps import GridMap, load_world
 from jaxplore.planners import get_planner
-from jaxplore.resolve import Resolved, resolve
+from jaxplore.resolve import Resolved, config_difference, resolve
 from jaxplore.results import read_world
 from jaxplore.runspec import RunSpec, is_static, kind_of
 from jaxplore.sweeps.settings import SweepSpec, WorldEntry, random_samples
@@ -276,12 +276,12 @@ def resolve_schedule(schedule: Schedule, out: Path | None, grids: dict,
   resolved = []
   for group in schedule.groups:
     r = resolve_group(schedule.spec, group, out, grids, worlds)
-    now = jsonable(dataclasses.asdict(r.config))
-    if group.sim_config is not None and group.sim_config != now:
+    difference = config_difference(group.sim_config, r.config)
+    if difference is not None:
       raise ConfigError(
           f"cannot resume {out}: its schedule was made by jaxplore {schedule.jaxplore_version} and "
-          f"resolves differently here ({first_difference(group.sim_config, now)}); finish it "
-          f"with that version or start a new sweep")
+          f"resolves differently here ({difference}); finish it with that version or start a new "
+          f"sweep")
     memory.fit_chunk(r.config, group.chunk_size, n_dev, fixed=True)
     resolved.append(r)
   return resolved
