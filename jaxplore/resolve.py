@@ -155,9 +155,16 @@ def _one_value(name: str, value):
 def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
   """(traced weights, static settings) of ``planner_params`` for ``planner``: every name must be
   one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
-  weights, settings = get_planner(planner).split_overrides(planner_params)
+  spec = get_planner(planner)
+  weights, settings = spec.split_overrides(planner_params)
   weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v for k, v in weights.items()}
-  return weights, {k: _one_value(k, v) for k, v in settings.items()}
+  settings = {k: _one_value(k, v) for k, v in settings.items()}
+  for name, value in settings.items():
+    default = getattr(spec.settings, name)
+    if (isinstance(default, int) and not isinstance(default, bool) and isinstance(value, float)
+        and not value.is_integer()):
+      raise ConfigError(f"planner {planner!r}: setting {name} must be an integer, got {value!r}")
+  return weights, settings
 
 
 def split_params(params) -> tuple[dict, dict]:

@@ -13,6 +13,7 @@ from conftest import box_world
 from jaxplore import cli, results, runner, sweeps
 from jaxplore.config import ConfigError
 from jaxplore.planners import base, frontier
+from jaxplore.resolve import resolve
 from jaxplore.runspec import RunSpec
 from jaxplore.sweeps import schedule
 
@@ -134,6 +135,8 @@ def test_a_swept_static_setting_makes_a_group_per_value(probe):
       ("nearest_frontier", ("alpha",), 4)]
   assert [r.config.planner_settings for r in resolved[:2]] == [ProbeSettings(1), ProbeSettings(3)]
   assert resolved[0].config != resolved[1].config  # two compiled programs
+  with pytest.raises(ConfigError, match="plan_increment must be an integer, got 2.5"):
+    resolve(RunSpec(world=box_world(30, 40), planner=probe, planner_params={"plan_increment": 2.5}))
   with pytest.raises(ConfigError, match="plan_increment fixes the compiled program"):
     schedule.resolve_group(spec, dataclasses.replace(
         made.groups[0], rows=made.groups[0].rows + made.groups[1].rows), None, grids)
