@@ -169,6 +169,9 @@ def candidate_poses(reference, settings: Settings, res: float):
   return cells, yaws, group
 
 
+@base.register("gpbo", defaults=DEFAULTS, settings=Settings(), validate=validate,
+               init_memory=init_memory, commits=True,
+               summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, GP-UCB (Li's Method 29)")
 def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, memory):
   """One GP/BO planning round for one robot (see the module docstring). Returns (Plan, memory)."""
   settings: Settings = ctx.settings if ctx.settings is not None else Settings()

@@ -2,9 +2,7 @@
 goal against the rules that make a candidate valid, and its mutual information against a NumPy
 ray caster and SciPy's Dijkstra. The planner is jitted once and shared by the tests."""
 
-import dataclasses
 import math
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -23,21 +21,9 @@ H, W, RES = 40, 44, 0.1
 FREE, OCC, UNK = 0, 1, 2
 
 
-@dataclasses.dataclass(frozen=True)
-class Ctx:
-  height: int
-  width: int
-  res: float
-  path_capacity: int
-  dijkstra_max_sweeps: int
-  max_inflation_cells: int
-  max_steps: int
-  r_e_cells: float
-  settings: Any
-
-
 SETTINGS = gpbo.Settings(n_test=256, n_beams=48)
-CTX = Ctx(H, W, RES, 128, 128, 2, 1000, 0.0, SETTINGS)
+CTX = base.PlannerContext(height=H, width=W, res=RES, path_capacity=128, dijkstra_max_sweeps=128,
+                          max_inflation_cells=2, max_steps=1000, settings=SETTINGS)
 PARAMS = make_params("li2020", r_robot=0.15, r_max=2.5, planner=gpbo.DEFAULTS)
 PLAN = jax.jit(lambda view, robot, params, key, memory: gpbo.plan_gpbo(CTX, view, robot, params, key, memory))
 
