@@ -157,3 +157,23 @@ def test_a_mapped_room_without_frontiers_ends_the_exploration():
   plan, new_memory = PLAN(view, robot_at((30, 5)), PARAMS, jax.random.key(1), memory)
   assert not bool(plan.valid) and int(plan.length) == 0 and int(plan.n_candidates) == 0
   np.testing.assert_array_equal(np.asarray(new_memory), np.asarray(memory))
+
+
+def test_gpbo_explores_a_box_world_with_rooms_to_completion():
+  from conftest import box_world
+  from jaxplore import sim
+  from jaxplore.config import config_for
+  # Three rooms off a corridor, 1 m doors.
+  grid = box_world(40, 60, walls=((14, 15, 0, 18), (14, 15, 28, 60), (15, 40, 30, 31),
+                                  (15, 26, 15, 16), (30, 40, 15, 16)))
+  params = make_params(res=grid.res, r_max=2.5, fov=2 * math.pi, r_robot=0.1, planner=gpbo.DEFAULTS)
+  # plan_chunk=1: the engine compiles the planner once, unbatched (the conformance test runs it
+  # vmapped).
+  config = config_for(grid.shape, grid.res, params, max_steps=300, n_beams=72, planner="gpbo",
+                      planner_settings=SETTINGS, plan_window=0, plan_chunk=1)
+  world = sim.make_world(grid, 0.1)
+  robots = 2
+  state, records = sim.rollout(config, world, sim.broadcast_params(params, robots),
+                               jax.random.split(jax.random.key(5), robots))
+  reasons = [sim.REASONS[int(r)] for r in np.asarray(state.reason)]
+  assert reasons == ["complete"] * robots, (reasons, np.asarray(state.steps))
