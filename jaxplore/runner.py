@@ -104,7 +104,7 @@ def parse_start(start) -> tuple[float, float, float] | None:
 
 # Settings a user gives like parameters (``--set r_e=1.0``) that fix a shape, so they are static
 # (``SimConfig``), not traced: one value per batch.
-STATIC_PARAMS = ("r_e",)
+STATIC_PARAMS = ("r_e", "dpi_min")
 
 
 def split_static(params: dict | None) -> tuple[dict, dict]:

@@ -54,7 +54,7 @@ MEMORY_FRACTION = 0.8
 DEFAULTS = dict(world="building", planner="li2020", seeds=8, preset="li2020")
 # Parameters that fix a static shape exactly (not just a bound): r_e sets the radius of li2020's
 # gain kernel (SimConfig.gain_radius_cells). Rows with different values run as separate groups.
-SHAPE_PARAMS = ("r_e",)
+SHAPE_PARAMS = ("r_e", "dpi_min")
 RUN_KEYS = ("preset", "res", "start", "max_steps", "replan_every", "params", "planner_params",
             "pose_noise", "path_capacity", "chunk_epochs", "rate_interval")
 
