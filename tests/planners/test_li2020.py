@@ -299,3 +299,40 @@ def test_the_progress_timeout_ends_a_robot_that_drives_without_mapping_anything(
   plan, memory = PLAN(CONFIG, make_view(l2, entropy, params), robot_at((5, 15)), params,
                       jax.random.PRNGKey(0), memory)
   assert bool(plan.valid) and float(memory["driven"]) == 0.0
+
+
+def test_two_pockets_behind_slits_make_a_two_cycle_that_the_progress_timeout_ends():
+  """A hand-made belief with the livelock: a mapped corridor with two slits too narrow for the
+  robot, each into an unknown room. The rooms' cells near a slit count as observable (reached
+  from the slit's free cell through unknown cells), but no scan from the corridor will ever
+  map them, so their entropy never falls. From near one slit the best path goes to the other
+  and back: a 2-cycle over a belief that never changes, until the progress timeout."""
+  params = params_for(progress_m=20.0)
+  l = np.full((H, W), -3.0, np.float32)
+  l[:9, :] = 0.0  # the unknown rooms above the corridor
+  l[9, :] = 3.0  # their wall, with two slits
+  l[9, 5] = l[9, 28] = -3.0
+  l[16:, :] = 3.0
+  l[:, 0] = l[:, -1] = 3.0
+  l[:9, 16:18] = 3.0  # the wall between the two rooms
+  entropy = np.where(l == 0.0, math.log(2), 0.05).astype(np.float32)
+  view = make_view(l, entropy, params)
+  assert not np.asarray(view.traversable)[9, [5, 28]].any()  # the robot cannot pass a slit
+  memory = li2020.init_memory(CONFIG, params)
+  cell, sides, driven = (12, 5), [], 0.0
+  for i in range(30):
+    pose = jnp.asarray([(cell[1] + 0.5) * CONFIG.res, (cell[0] + 0.5) * CONFIG.res, 0.0], jnp.float32)
+    robot = robot_at(cell).replace(pose=pose)
+    plan, memory = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(i), memory)
+    if not bool(plan.valid):
+      break
+    goal = tuple(int(v) for v in np.asarray(plan.goal))
+    sides.append("left" if goal[1] < 17 else "right")
+    driven += math.hypot(goal[0] - cell[0], goal[1] - cell[1]) * CONFIG.res
+    cell = goal
+  # The 2-cycle: after a step toward the first slit, every plan crosses to the other one ...
+  assert sides[1:7] == ["right", "left"] * 3
+  assert all(a != b for a, b in zip(sides[1:], sides[2:]))
+  # ... until 20 m without a newly known cell end the episode.
+  assert not bool(plan.valid) and bool(memory["stuck"])
+  assert 20.0 - 3.5 <= driven <= 20.0 + 3.5
