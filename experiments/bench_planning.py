@@ -3,9 +3,8 @@
 All planners plan for the same robots in the same belief states (taken after a few motion
 steps on a ~200x200-cell world), in one process; compile time is reported separately. Nearest
 frontier is timed with its planning window (the default) and on the whole grid, which is what
-li2020 (not windowed: its utility weighs every candidate) always plans on.
-
-The states carry Li's entropy map for the planners that read it; each planner gets its own fresh
+li2020 and gpbo (not windowed: their utilities weigh every candidate) always plan on. The
+states carry Li's entropy map for the planners that read it; each planner gets its own fresh
 per-robot memory (gpbo's GP hyper-parameters, li2020's progress timeout).
 
 Usage: python experiments/bench_planning.py [--robots 256] [--world open] [--devices 2]
@@ -33,6 +32,7 @@ def main(argv=None):
                       help="nearest_frontier is timed with its window and on the whole grid")
   args = parser.parse_args(argv)
   os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
+
   import dataclasses
 
   import jax
@@ -40,9 +40,11 @@ def main(argv=None):
   import numpy as np
   from jax.sharding import Mesh, PartitionSpec as P
 
-  from jaxplore import runner, sim
+  from jaxplore import sim
   from jaxplore.planners import get_planner
+  from jaxplore.resolve import resolve
   from jaxplore.robot import keeps_entropy_map
+  from jaxplore.runspec import RunSpec
 
   rows = []
   states = None
@@ -50,21 +52,18 @@ def main(argv=None):
   for planner in args.planners.split(","):
     runs += [(planner, False), (planner, True)] if planner == "nearest_frontier" else [(planner, False)]
   for planner, whole_grid in runs:
-    grid, config, params, _ = runner.prepare(world=args.world, planner=planner, robots=args.robots,
-                                             max_steps=args.warm_steps + 8,
-                                             planner_params=dict(get_planner(planner).defaults))
-    if whole_grid:
-      config = dataclasses.replace(config, plan_window=0)
+    resolved = resolve(RunSpec(world=args.world, planner=planner, robots=args.robots,
+                               max_steps=args.warm_steps + 8,
+                               plan_window=0 if whole_grid else None))
+    config, params, world = resolved.config, resolved.params, resolved.world
     window = config.plan_window if sim.uses_window(config) else "off"
-    world = sim.make_world(grid, float(params.r_robot))
     params_b = sim.broadcast_params(params, args.robots)
     if states is None:  # the same belief states for every planner, with Li's entropy map
       warm = dataclasses.replace(config, entropy_map=True)
       keys = jax.random.split(jax.random.PRNGKey(0), args.robots)
       states = sim.reset_batch(warm, world, params_b, keys)
       states, _ = sim.advance(warm, world, params_b, states, args.warm_steps // warm.replan_every)
-    spec = get_planner(planner)
-    memory = spec.initial_memory(sim.planner_context(config), params)
+    memory = get_planner(planner).initial_memory(sim.planner_context(config), params)
     planner_states = states.replace(
         memory=jax.tree.map(lambda x: jnp.broadcast_to(x, (args.robots,) + jnp.shape(x)), memory),
         entropy_map=states.entropy_map if keeps_entropy_map(config) else None)

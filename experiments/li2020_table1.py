@@ -71,7 +71,9 @@ def main(argv=None):
   import pandas as pd
 
   import jaxplore
-  from jaxplore import plot, runner
+  from jaxplore import plot
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
 
   out = Path(args.out)
   out.mkdir(parents=True, exist_ok=True)
@@ -92,8 +94,8 @@ def main(argv=None):
       # invocation with the same settings, so a long table can be built in several sittings.
       # R_e is part of the tag: parts from before it was derived by Eq 5-6 are not reused.
       name, weights = VARIANTS.get(planner, (planner, None))
-      r_e = runner.prepare(world=spec, planner=name, robots=1, preset="li2020", res=res,
-                           planner_params=weights)[1].r_e
+      r_e = resolve(RunSpec(world=spec, planner=name, robots=1, preset="li2020", res=res,
+                            planner_params=weights or {})).config.r_e
       tag = f"{world}_{planner}_s{args.seeds}_m{max_steps or 'auto'}_re{r_e:.2f}"
       part_e, part_c = out / f"{tag}.episodes.parquet", out / f"{tag}.curves.parquet"
       if part_e.exists() and part_c.exists():
@@ -125,7 +127,7 @@ def main(argv=None):
       return f"{int(g.max_steps.iloc[0])}"
     # Parts written before the budget was recorded ran with the runner's default.
     spec, res, _ = WORLDS[g.world.iloc[0]]
-    return f"{runner.prepare(world=spec, planner='nearest_frontier', robots=1, preset='li2020', res=res)[1].max_steps}"
+    return f"{resolve(RunSpec(world=spec, robots=1, preset='li2020', res=res)).config.max_steps}"
   episodes.to_parquet(out / "episodes.parquet", index=False)
   curves.to_parquet(out / "curves.parquet", index=False)
 

@@ -39,7 +39,7 @@ class SimConfig:
       (it always replans when its path is done).
     max_steps: the step budget of an episode (``timeout`` after it).
     planner: registry name of the planner.
-    pose_noise: corrupt odometry and dead-reckon the estimate (SPEC §1); when False the estimate
+    pose_noise: corrupt odometry and dead-reckon the estimate; when False the estimate
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
     max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
@@ -107,7 +107,7 @@ class Params:
   scalars, so every planner can add its own without the simulator knowing them).
   """
 
-  # lidar (SPEC §1)
+  # lidar
   r_max: Any = 15.0  # max range, m
   fov: Any = math.radians(190.0)  # field of view, rad
   range_noise: Any = 0.0  # std of Gaussian range noise, m
@@ -126,9 +126,14 @@ class Params:
   w_max: Any = 1.0  # rad/s
   dt: Any = 0.4  # s
   r_robot: Any = 0.2  # m
-  # localisation (Li Eq 16-17 and SPEC §1)
-  sigma_d: Any = 1.0
-  sigma_phi: Any = 1.0
+  # localisation (Li Eq 16-17; relocalisation by a Kalman update)
+  sigma_d: Any = 1.0  # Li's planning model V_n (Eq 16): std per metre driven, for Σ
+  sigma_phi: Any = 1.0  # and per radian turned
+  # The simulated odometry error with ``pose_noise`` (not Li's V_n, a 100 % std per metre):
+  # zero-mean Gaussian increments of a wheeled robot whose SLAM front end keeps the error to a
+  # few percent, corrected further by relocalisation.
+  odom_noise_d: Any = 0.03  # std of the distance (and lateral) error per metre driven
+  odom_noise_phi: Any = 0.03  # std of the heading error per radian turned
   sigma0: Any = 1e-4  # initial pose covariance, diag, m² and rad²
   reloc_min_hits: Any = 20.0  # beams that must end on well-mapped occupied cells
   reloc_entropy: Any = 0.3  # "well-mapped": cell entropy below this, nats
@@ -253,7 +258,8 @@ def validate_params(params: Params, config: SimConfig) -> None:
   max_rr = config.max_inflation_cells * config.res
   check("r_robot", p.r_robot, lambda a: a <= max_rr + 1e-6,
         f"<= max_inflation_cells * res = {max_rr:.3g} m (raise SimConfig.max_inflation_cells)")
-  for name in ("sigma_d", "sigma_phi", "reloc_min_hits", "reloc_entropy"):
+  for name in ("sigma_d", "sigma_phi", "odom_noise_d", "odom_noise_phi", "reloc_min_hits",
+               "reloc_entropy"):
     check(name, getattr(p, name), lambda a: a >= 0, ">= 0")
   for name in ("sigma0", "reloc_var_xy", "reloc_var_theta"):
     check(name, getattr(p, name), positive, "> 0")
