@@ -307,9 +307,38 @@ def auto_plan_window(height: int, width: int, reach_cells: int, max_inflation_ce
   return side if 2 * side * side <= height * width and side < min(height, width) else 0
 
 
+def effective_radius(res: float, fov: float, n_beams: int, dpi_min: float | None = None) -> float:
+  """Li et al.'s effective radius R_e (Eq 5-6), m: the largest distance D at which the scanner
+  density ``S_dpi = 1 / (D·tan θ)`` stays above ``dpi_min``, i.e. ``1 / (dpi_min·tan θ)``.
+
+  Args:
+    res: metres per cell; ``dpi_min`` defaults to one beam per cell, ``1 / res``.
+    fov, n_beams: the lidar's field of view (rad) and beam count; θ is the angle between two
+      adjacent beams (:func:`jaxplore.sensor.beam_angles`' spacing).
+    dpi_min: Eq 6's minimum density, beams per metre.
+  """
+  if n_beams < 2 or not fov > 0:
+    raise ConfigError(f"R_e needs at least 2 beams over a positive field of view, got {n_beams}, {fov}")
+  step = fov / n_beams if fov >= 2 * math.pi - 1e-6 else fov / (n_beams - 1)
+  spacing = res if dpi_min is None else 1.0 / dpi_min
+  if not spacing > 0:
+    raise ConfigError(f"dpi_min must be > 0 beams per metre, got {dpi_min}")
+  return spacing / math.tan(step)
+
+
 def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
                **overrides) -> SimConfig:
-  """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``."""
+  """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``.
+
+  With a ``preset`` and no ``r_e`` among the overrides, R_e is derived from the lidar by Eq 5-6
+  (:func:`effective_radius`, one beam per cell unless ``dpi_min`` is given; the widest ``fov``
+  of ``params``); without a preset it is ``SimConfig.r_e``'s default unless given.
+  """
+  dpi_min = overrides.pop("dpi_min", None)
+  if preset is not None and "r_e" not in overrides:
+    n_beams = int(overrides.get("n_beams", PRESETS[preset].n_beams))
+    overrides["r_e"] = effective_radius(float(res), float(np.max(np.asarray(params.fov))), n_beams,
+                                        dpi_min)
   r_max = float(np.max(np.asarray(params.r_max)))
   r_robot = float(np.max(np.asarray(params.r_robot)))
   r_u = float(np.max(np.asarray(params.alpha))) * float(overrides.get("r_e", SimConfig.r_e))

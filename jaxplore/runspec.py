@@ -35,8 +35,9 @@ import numpy as np
 from jaxplore.config import PARAM_FIELDS, PRESETS, ConfigError
 
 # Simulator settings that fix a static shape exactly (not just a bound): Li's effective radius
-# R_e sets the radius of li2020's gain kernel, so every value is a compiled program of its own.
-STATIC_PARAMS = ("r_e",)
+# R_e sets the radius of li2020's gain kernel (dpi_min derives it, Eq 5-6), so every value is a
+# compiled program of its own.
+STATIC_PARAMS = ("r_e", "dpi_min")
 SIM_PARAMS = PARAM_FIELDS + tuple(n for n in STATIC_PARAMS if n not in PARAM_FIELDS)
 SEED_LIMIT = 2**32  # a PRNG seed is a uint32: larger seeds would alias smaller ones
 AXES = ("world", "planner", "robots", "seed", "robot_seeds")  # what a sweep varies row by row
