@@ -44,11 +44,15 @@ done):
 
 Decisions (the paper is silent; see also the module's settings):
 
-* Perception happens at every step in jaxplore, so the belief knows more than the LSRs. With
-  ``arc_rule = "lsr+belief"`` (default) a free bin is also closed when its ray, extended to
-  ``R + arc_reach``, meets no unknown cell before an occupied one: checked when its node is
-  created and, at every decision, for the ``recheck_nodes`` nodes nearest the robot.
-  ``arc_rule = "lsr"`` keeps the paper's LSR-only arcs.
+* Perception happens at every step in jaxplore, so the belief knows more than the LSRs: an
+  arc may lead into space the robot has already seen while driving. With
+  ``arc_rule = "lsr+belief"`` (default) a free bin is also closed when no frontier cell of the
+  belief (a free cell next to an unknown one) lies within ``arc_reach`` of the end of its ray;
+  checked when its node is created and for every node at every decision. (Testing only the
+  bin's central ray for unknown cells is not enough: at a corridor's corner the unseen part
+  lies in the shadow of the corner, which no ray from the node enters, and a ray that grazes
+  the corner reaches R in free space and then meets the far wall.) ``arc_rule = "lsr"`` keeps
+  the paper's arcs, from the LSRs alone.
 * A robot whose path ends away from its destination (a path cut by the path capacity, a cell
   found occupied) is sent there again up to ``retries`` times. An exploration step that still
   fails ends where the robot is: that position becomes the new node. A hop that fails removes
@@ -87,7 +91,6 @@ DEFAULTS = {
     "r": 0.5,  # step fraction of the LSR radius, r < 1
     "d_min": 1.0,  # SRT: least distance of a new node from every node, m
     "I_max": 30.0,  # SRT: draws per decision
-    "arc_reach": 0.5,  # lsr+belief: a free bin stays open if unknown lies within R + arc_reach, m
     "arrive_tol": 0.3,  # distance at which a destination counts as reached, m
     "retries": 3.0,  # times a robot is sent again to a destination it did not reach
 }
@@ -100,23 +103,22 @@ class Settings:
   Attributes:
     nodes: node capacity N of the exploration graph.
     bins: angular bins B of an LSR (3° at 120).
-    ray_m: the longest LSR ray cast, m; ``R`` (and ``R + arc_reach`` under ``lsr+belief``)
-      must not exceed it.
+    max_radius: the largest LSR radius ``R`` allowed, m (it bounds the rays cast).
     arc_rule: ``"lsr+belief"`` or ``"lsr"`` (see the module docstring).
+    arc_reach: under ``lsr+belief``, a free bin stays open while a frontier cell of the belief
+      lies within this many metres (rows and columns) of the end of its ray.
     hierarchy: Extended REG's ranking of arcs: ``"turn"`` (smallest turn from the heading, ties
       to the wider arc, then the lower bin) or ``"width"`` (widest arc first, ties to the
       smaller turn).
-    recheck_nodes: nodes nearest the robot whose arcs are checked against the belief at every
-      decision (``lsr+belief``).
     max_draws: static bound on SRT's ``I_max``.
   """
 
   nodes: int = 256
   bins: int = 120
-  ray_m: float = 4.5
+  max_radius: float = 4.0
   arc_rule: str = "lsr+belief"
+  arc_reach: float = 0.5
   hierarchy: str = "turn"
-  recheck_nodes: int = 32
   max_draws: int = 64
 
 
@@ -182,26 +184,23 @@ def validate(weights, params, ctx) -> None:
   s = ctx.settings
   if not isinstance(s, Settings):
     raise ConfigError(f"REG planners need their Settings, got {s!r}")
-  if s.nodes < 2 or s.bins < 8 or s.recheck_nodes < 1 or s.max_draws < 1:
-    raise ConfigError(f"REG settings: nodes >= 2, bins >= 8, recheck_nodes >= 1 and max_draws >= 1 "
-                      f"(got nodes={s.nodes}, bins={s.bins}, recheck_nodes={s.recheck_nodes}, "
-                      f"max_draws={s.max_draws})")
+  if s.nodes < 2 or s.bins < 8 or s.max_draws < 1 or not s.max_radius > 0 or not s.arc_reach >= 0:
+    raise ConfigError(f"REG settings: nodes >= 2, bins >= 8, max_draws >= 1, max_radius > 0 and "
+                      f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, max_draws={s.max_draws}, "
+                      f"max_radius={s.max_radius}, arc_reach={s.arc_reach})")
   if s.arc_rule not in ARC_RULES:
     raise ConfigError(f"REG setting arc_rule must be one of {ARC_RULES}, got {s.arc_rule!r}")
   if s.hierarchy not in HIERARCHIES:
     raise ConfigError(f"REG setting hierarchy must be one of {HIERARCHIES}, got {s.hierarchy!r}")
   w = {k: np.asarray(weights.get(k, v), np.float64) for k, v in DEFAULTS.items()}
-  reach = w["R"] + (w["arc_reach"] if s.arc_rule == "lsr+belief" else 0.0)
   checks = [
       ("R", np.all(w["R"] > 0), "> 0"),
-      ("R", np.all(reach <= s.ray_m + 1e-6),
-       f"such that R{' + arc_reach' if s.arc_rule == 'lsr+belief' else ''} <= ray_m = {s.ray_m} m "
-       f"(raise the setting ray_m)"),
+      ("R", np.all(w["R"] <= s.max_radius + 1e-6),
+       f"<= the setting max_radius = {s.max_radius} m (raise it)"),
       ("r", np.all((w["r"] > 0) & (w["r"] < 1)), "in (0, 1)"),
       ("d_min", np.all(w["d_min"] >= 0), ">= 0"),
       ("I_max", np.all((w["I_max"] >= 1) & (w["I_max"] <= s.max_draws)),
        f"in [1, max_draws = {s.max_draws}] (raise the setting max_draws)"),
-      ("arc_reach", np.all(w["arc_reach"] >= 0), ">= 0"),
       ("arrive_tol", np.all(w["arrive_tol"] >= 0), ">= 0"),
       ("retries", np.all(w["retries"] >= 0), ">= 0"),
   ]
@@ -362,8 +361,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   radius = w["R"] / res
   r = w["r"]
   belief_arcs = s.arc_rule == "lsr+belief" and variant != "srt"
-  reach = (w["R"] + w["arc_reach"]) / res
-  n_cross = int(math.ceil(s.ray_m / res)) + 2
+  n_cross = int(math.ceil(s.max_radius / res)) + 2
   classes = K.belief_classes(view.free, view.occupied)
   node_index = jnp.arange(n, dtype=jnp.int32)
 
@@ -395,14 +393,20 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   # --- 2. PERCEPTION + VERIFICATION + ADD: a new node where the robot stands -----------------
   cur = mem.current
   cur_safe = jnp.maximum(cur, 0)
-  rays = K.lsr_rays(classes, here, radius, reach, n_cross, bins)
+  rays = K.lsr_rays(classes, here, radius, n_cross, bins)
+  if belief_arcs:
+    near_frontier = K.dilate(view.frontier, int(round(s.arc_reach / res)))
+    leads_on = lambda ends: near_frontier[_cell(ends, height, width)[..., 0],
+                                          _cell(ends, height, width)[..., 1]]
+  else:
+    leads_on = lambda ends: jnp.ones(ends.shape[:-1], bool)
   add = start | explore_end
   create = add & (mem.count < n) & ~mem.overflow
   overflow = mem.overflow | (add & (mem.count >= n))
   new = jnp.minimum(mem.count, n - 1)
   open_ = mem.open.at[cur_safe].set(
       jnp.where(explore_end & (cur >= 0), mem.open[cur_safe] | mem.pending, mem.open[cur_safe]))
-  new_open = ~rays.obstacle & (rays.sees_unknown if belief_arcs else True)
+  new_open = ~rays.obstacle & leads_on(K.boundary_points(here, rays.rho))
   set_row = lambda array, value: array.at[new].set(jnp.where(create, value, array[new]))
   uv = set_row(mem.uv, here)
   rho = set_row(mem.rho, rays.rho)
@@ -434,22 +438,16 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     in_others = jax.vmap(lambda q, rho_j: K.inside_lsr(ends[c], q, rho_j))(uv, rho)
     closes_current = jnp.any(in_others & others[:, None], axis=0)
     intersected = (open_ & ~in_current).at[c].set(open_[c] & ~closes_current)
-    samples = 2 * int(math.ceil(s.ray_m / res)) + 1
+    samples = 2 * int(math.ceil(s.max_radius / res)) + 1
     bridge = others & (separation <= radius) & _segments_clear(view.traversable, q_c, uv, samples)
     bridged = adjacent | (bridge[None, :] & (node_index == c)[:, None]) | (
         bridge[:, None] & (node_index == c)[None, :])
     open_ = jnp.where(decide, intersected, open_)
     adjacent = jnp.where(decide, bridged, adjacent)
 
-  # The belief check of the arcs of the nodes nearest the robot (lsr+belief).
-  if belief_arcs:
-    k = min(s.recheck_nodes, n)
-    gap = uv - here[None, :]
-    _, nearest = jax.lax.top_k(-jnp.where(valid_nodes, jnp.sum(gap * gap, axis=-1), jnp.inf), k)
-    sees = jax.vmap(lambda q: K.lsr_rays(classes, q, radius, reach, n_cross, bins).sees_unknown)(
-        uv[nearest])
-    checked = open_[nearest] & (sees | ~valid_nodes[nearest][:, None])
-    open_ = jnp.where(decide, open_.at[nearest].set(checked), open_)
+    # The belief check of every node's arcs (lsr+belief).
+    if belief_arcs:
+      open_ = jnp.where(decide, open_ & leads_on(ends), open_)
 
   # --- 4. explore from the current node ---------------------------------------------------------
   q_c = uv[c]

@@ -53,15 +53,13 @@ class Rays(NamedTuple):
   Attributes:
     rho: distance along each bin's central ray to the first cell that is not free, capped at R.
     obstacle: the ray stops on an occupied cell (or the map's edge) before R.
-    sees_unknown: the ray, extended to ``reach``, meets an unknown cell before an occupied one.
   """
 
   rho: jax.Array
   obstacle: jax.Array
-  sees_unknown: jax.Array
 
 
-def lsr_rays(classes, uv, radius, reach, n_cross: int, bins: int) -> Rays:
+def lsr_rays(classes, uv, radius, n_cross: int, bins: int) -> Rays:
   """The LSR of a node at ``uv``: Toriz & Sánchez's PERCEPTION, cast on the belief.
 
   Each bin's central ray is traversed exactly (:func:`jaxplore.sensor.trace`, the lidar's own
@@ -72,8 +70,7 @@ def lsr_rays(classes, uv, radius, reach, n_cross: int, bins: int) -> Rays:
     classes: i32[H, W] from :func:`belief_classes`.
     uv: f32[2] the node's position (column, row), cell units.
     radius: the LSR radius R, cells (traced).
-    reach: how far ``sees_unknown`` looks, cells (traced; >= ``radius`` for its meaning).
-    n_cross: static grid-line crossings per axis traced, > max(radius, reach).
+    n_cross: static grid-line crossings per axis traced, > radius.
     bins: static number of bins B.
 
   Returns:
@@ -90,8 +87,18 @@ def lsr_rays(classes, uv, radius, reach, n_cross: int, bins: int) -> Rays:
   t_stop = jnp.minimum(t_occupied, t_unknown)
   # A tie (the same distance) goes to the occupied cell: the ray is blocked there.
   obstacle = (t_occupied <= t_unknown) & (t_stop < radius)
-  return Rays(rho=jnp.minimum(t_stop, radius).astype(jnp.float32), obstacle=obstacle,
-              sees_unknown=(t_unknown < t_occupied) & (t_unknown <= reach))
+  return Rays(rho=jnp.minimum(t_stop, radius).astype(jnp.float32), obstacle=obstacle)
+
+
+def dilate(mask, cells: int):
+  """bool[H, W]: cells with a set cell of ``mask`` within ``cells`` rows and columns (a square
+  neighbourhood of side 2·cells + 1; outside the grid counts as unset)."""
+  if cells <= 0:
+    return mask
+  window = 2 * cells + 1
+  as_int = mask.astype(jnp.int32)
+  rows = jax.lax.reduce_window(as_int, 0, jax.lax.max, (window, 1), (1, 1), "SAME")
+  return jax.lax.reduce_window(rows, 0, jax.lax.max, (1, window), (1, 1), "SAME") > 0
 
 
 def inside_lsr(points, centre, rho):
