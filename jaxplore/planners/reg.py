@@ -91,6 +91,7 @@ DEFAULTS = {
     "r": 0.5,  # step fraction of the LSR radius, r < 1
     "d_min": 1.0,  # SRT: least distance of a new node from every node, m
     "I_max": 30.0,  # SRT: draws per decision
+    "d_sep": 0.5,  # REG, SRG: least distance of a new node from every node but the current, m
     "arrive_tol": 0.3,  # distance at which a destination counts as reached, m
     "retries": 3.0,  # times a robot is sent again to a destination it did not reach
 }
@@ -141,6 +142,7 @@ class Memory:
     current: i32 the node the robot is at, or last left (-1 before node 0).
     mode: i32 START, EXPLORE (driving to a new node), TRAVEL (driving to node ``hop``), DONE.
     pending: bool[B] F_det: the current node's bins being explored (closed until verified).
+    turn: bool the exploration step is a turn in place (a step shorter than ``arrive_tol``).
     dest: f32[2] where the robot is driving (u, v): q_dest, or node ``hop``.
     phi: f32 the approach direction φ* of the current exploration step, rad.
     hop: i32 the node driven to in TRAVEL (-1 otherwise).
@@ -159,6 +161,7 @@ class Memory:
   current: chex.Array
   mode: chex.Array
   pending: chex.Array
+  turn: chex.Array
   dest: chex.Array
   phi: chex.Array
   hop: chex.Array
@@ -175,7 +178,7 @@ def init_memory(ctx, params) -> Memory:
       obstacle=jnp.zeros((n, b), bool), open=jnp.zeros((n, b), bool),
       adjacent=jnp.zeros((n, n), bool), parent=jnp.full((n,), -1, jnp.int32),
       count=jnp.int32(0), current=jnp.int32(-1), mode=jnp.int32(START),
-      pending=jnp.zeros((b,), bool), dest=jnp.zeros((2,), jnp.float32), phi=jnp.float32(0),
+      pending=jnp.zeros((b,), bool), turn=jnp.bool_(False), dest=jnp.zeros((2,), jnp.float32), phi=jnp.float32(0),
       hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False), decisions=jnp.int32(0))
 
 
@@ -290,12 +293,13 @@ def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r,
   return phi, fdet, order, eligible
 
 
-def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radius, standable,
+def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radius, acceptable,
                 key, max_rounds: int):
   """Steps 3-4 of Fig 1 for the current node: the chosen direction and destination.
 
-  ``standable(uv f32[..., 2]) -> bool[...]`` says whether the robot can stand on and reach a
-  point. Returns (found, phi, dest f32[2], fdet bool[B], open_c with failed F_det closed).
+  ``acceptable(uv f32[..., 2]) -> bool[...]`` says whether a destination may be chosen (the
+  robot can stand on it and reach it, ...). Returns (found, phi, dest f32[2], fdet bool[B],
+  open_c with failed F_det closed).
   """
   bins = open_c.shape[0]
   scales = jnp.asarray(STEP_SCALES, jnp.float32)
@@ -309,7 +313,7 @@ def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radi
     step = r * rho_c[K.bin_of(phi, bins)]
     dest = (q_c[None, None, :] + scales[None, :, None] * step[:, None, None] *
             _unit(phi)[:, None, :])
-    ok = standable(dest) & eligible[:, None]
+    ok = acceptable(dest) & eligible[:, None]
     score = jnp.where(ok, order[:, None] * len(STEP_SCALES) + jnp.arange(len(STEP_SCALES))[None, :],
                       jnp.inf)
     best = jnp.argmin(score.ravel())
@@ -389,32 +393,40 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   travel_failed = travel_end & ~near
   start = mode == START
   decide = start | explore_end | travel_end
+  # A turn in place perceives the current node again instead of adding a node beside it.
+  turned = explore_end & mem.turn
+  stepped = explore_end & ~mem.turn
 
   # --- 2. PERCEPTION + VERIFICATION + ADD: a new node where the robot stands -----------------
   cur = mem.current
   cur_safe = jnp.maximum(cur, 0)
-  rays = K.lsr_rays(classes, here, radius, n_cross, bins)
+  seen_from = jnp.where(turned, mem.uv[cur_safe], here)
+  rays = K.lsr_rays(classes, seen_from, radius, n_cross, bins)
   if belief_arcs:
     near_frontier = K.dilate(view.frontier, int(round(s.arc_reach / res)))
     leads_on = lambda ends: near_frontier[_cell(ends, height, width)[..., 0],
                                           _cell(ends, height, width)[..., 1]]
   else:
     leads_on = lambda ends: jnp.ones(ends.shape[:-1], bool)
-  add = start | explore_end
+  add = start | stepped
   create = add & (mem.count < n) & ~mem.overflow
   overflow = mem.overflow | (add & (mem.count >= n))
   new = jnp.minimum(mem.count, n - 1)
-  open_ = mem.open.at[cur_safe].set(
-      jnp.where(explore_end & (cur >= 0), mem.open[cur_safe] | mem.pending, mem.open[cur_safe]))
-  new_open = ~rays.obstacle & leads_on(K.boundary_points(here, rays.rho))
-  set_row = lambda array, value: array.at[new].set(jnp.where(create, value, array[new]))
-  uv = set_row(mem.uv, here)
-  rho = set_row(mem.rho, rays.rho)
-  obstacle = set_row(mem.obstacle, rays.obstacle)
-  open_ = set_row(open_, new_open)
-  link = create & explore_end & (cur >= 0)
+  new_open = ~rays.obstacle & leads_on(K.boundary_points(seen_from, rays.rho))
+  # VERIFICATION reopens F_det, which the new LSR closes again where it covers it (step 3);
+  # after a turn in place F_det stays closed and the node's arcs can only close.
+  open_ = mem.open.at[cur_safe].set(jnp.where(
+      stepped & (cur >= 0), mem.open[cur_safe] | mem.pending,
+      jnp.where(turned, mem.open[cur_safe] & new_open, mem.open[cur_safe])))
+  set_row = lambda array, value, row, when: array.at[row].set(jnp.where(when, value, array[row]))
+  uv = set_row(mem.uv, here, new, create)
+  rho = set_row(set_row(mem.rho, rays.rho, new, create), rays.rho, cur_safe, turned)
+  obstacle = set_row(set_row(mem.obstacle, rays.obstacle, new, create), rays.obstacle, cur_safe,
+                     turned)
+  open_ = set_row(open_, new_open, new, create)
+  link = create & stepped & (cur >= 0)
   adjacent = mem.adjacent.at[new, cur_safe].max(link).at[cur_safe, new].max(link)
-  parent = set_row(mem.parent, jnp.where(start, -1, cur))
+  parent = set_row(mem.parent, jnp.where(start, -1, cur), new, create)
   count = mem.count + create.astype(jnp.int32)
   # A hop that failed loses the edge it followed; a hop off the graph (a direct fallback) that
   # failed was to an unreachable node, whose arcs are given up.
@@ -443,7 +455,8 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     bridged = adjacent | (bridge[None, :] & (node_index == c)[:, None]) | (
         bridge[:, None] & (node_index == c)[None, :])
     open_ = jnp.where(decide, intersected, open_)
-    adjacent = jnp.where(decide, bridged, adjacent)
+    # Bridges are added for a new node only: an edge cut after a failed hop stays cut.
+    adjacent = jnp.where(create, bridged, adjacent)
 
     # The belief check of every node's arcs (lsr+belief).
     if belief_arcs:
@@ -458,11 +471,27 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
                                    w["I_max"], standable, k_explore, s.max_draws)
     found = found & may_explore
     fdet = jnp.zeros((bins,), bool)
+    turn = jnp.bool_(False)
   else:
+    tol = w["arrive_tol"] / res
+    sep = w["d_sep"] / res
+    others = valid_nodes & (node_index != c)
+
+    def acceptable(points):
+      # A step shorter than the arrival tolerance is a turn in place; a longer one must not land
+      # on another node's place (the same step from the same arc again makes no progress).
+      offset = points - q_c
+      short = jnp.sum(offset * offset, axis=-1) < tol * tol
+      gap = points[..., None, :] - uv
+      apart = jnp.all((jnp.sum(gap * gap, axis=-1) >= sep * sep) | ~others, axis=-1)
+      return standable(points) & (short | apart)
+
     found, phi, dest, fdet, open_c = _select_arc(
         variant, s.hierarchy, jnp.where(may_explore, open_[c], False), rho[c], q_c, theta, r,
-        radius, standable, k_explore, bins + 1)
+        radius, acceptable, k_explore, bins + 1)
     open_ = open_.at[c].set(jnp.where(may_explore, open_c, open_[c]))
+    offset = dest - q_c
+    turn = found & (jnp.sum(offset * offset) < tol * tol)
 
   # --- 5./6. no arc here: FIND_PATH to a listed node, or home, or stop ------------------------
   grid_to_node = dist[_cell(uv, height, width)[:, 0], _cell(uv, height, width)[:, 1]]
@@ -512,6 +541,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
       uv=uv, rho=rho, obstacle=obstacle, open=open_, adjacent=adjacent, parent=parent, count=count,
       current=current.astype(jnp.int32), mode=new_mode.astype(jnp.int32),
       pending=jnp.where(explore, fdet, jnp.where(decide, False, mem.pending)),
+      turn=jnp.where(explore, turn, jnp.where(decide, False, mem.turn)),
       dest=new_dest, phi=new_phi.astype(jnp.float32),
       hop=jnp.where(travel, hop, jnp.where(decide, -1, mem.hop)).astype(jnp.int32),
       tries=jnp.where(decide, 0, mem.tries + 1).astype(jnp.int32), overflow=overflow,
