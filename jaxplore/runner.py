@@ -332,6 +332,7 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, params: Params, s
     if curve is not None and len(curve):
       row.update(metrics.episode_row(curve, initial, grid.res, n_reach, rate_interval))
     row["idle_steps"] = int(state.idle_steps[b])
+    row["collisions"] = int(state.collisions[b])
     rows.append(row)
   return pd.DataFrame(rows), curves
 
