@@ -45,7 +45,7 @@ def dijkstra(weights: jax.Array, source) -> tuple[jax.Array, jax.Array]:
   def settle(carry):
     dist, pred, settled, rounds = carry
     u = jnp.argmin(frontier(dist, settled)).astype(jnp.int32)
-    settled = settled.at[u].set(True)
+    settled = settled | (index == u)
     through = dist[u] + weights[u]
     better = (through < dist) & ~settled
     return (jnp.where(better, through, dist), jnp.where(better, u, pred), settled, rounds + 1)

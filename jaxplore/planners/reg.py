@@ -232,6 +232,20 @@ def _unit(angle):
   return jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
 
 
+def _set_row(array, value, row, when):
+  """``array`` with row ``row`` replaced by ``value`` where ``when`` (a select over the whole
+  array: cheaper to compile than a scatter, and these arrays are small)."""
+  mask = (jnp.arange(array.shape[0]) == row) & when
+  return jnp.where(mask.reshape((-1,) + (1,) * (array.ndim - 1)), value[None] if array.ndim > 1
+                   else value, array)
+
+
+def _pair(index, a, b):
+  """bool[N, N]: the two entries (a, b) and (b, a) of a symmetric matrix."""
+  row_a, row_b = index == a, index == b
+  return (row_a[:, None] & row_b[None, :]) | (row_b[:, None] & row_a[None, :])
+
+
 def _segments_clear(traversable, start, ends, samples: int):
   """bool[N]: whether the straight segments from ``start`` to each of ``ends`` (f32[N, 2], u v)
   stay on traversable cells, sampled every half cell or finer (``samples`` points)."""
@@ -248,6 +262,15 @@ def _run_bins(runs: K.Runs, bins: int):
   b = jnp.arange(bins, dtype=jnp.int32)
   offset = jnp.mod(b[None, :] - runs.start[:, None], bins)
   return runs.valid[:, None] & (offset < runs.length[:, None])
+
+
+def _draw(weight, u):
+  """The index drawn with probability ∝ ``weight`` (f32[K] >= 0) by the uniforms ``u`` (any
+  shape, in [0, 1)): the inverse of the cumulative distribution."""
+  total = jnp.cumsum(weight)
+  target = u[..., None] * total[-1]
+  index = jnp.sum(total.reshape((1,) * jnp.ndim(u) + total.shape) <= target, axis=-1)
+  return jnp.minimum(index, weight.shape[0] - 1).astype(jnp.int32)
 
 
 def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r, radius, key):
@@ -269,22 +292,21 @@ def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r,
     phi = jnp.where(fits, lo + 0.5 * width, jnp.where(lo_first, lo + 0.5 * cover,
                                                       lo + width - 0.5 * cover))
     turn = jnp.abs(K.wrap(phi - theta))
-    # Lexicographic ranks as one float key: turn (or width) first, then the other, then the bin.
     start = runs.start.astype(jnp.float32)
-    if hierarchy == "turn":
-      keys = (turn, -width, start)
-    else:
-      keys = (-width, turn, start)
-    order_idx = jnp.lexsort(keys[::-1])  # the last key sorts first
-    rank = jnp.zeros_like(order_idx).at[order_idx].set(jnp.arange(order_idx.shape[0]))
+    keys = (turn, -width, start) if hierarchy == "turn" else (-width, turn, start)
+    # Lexicographic rank: how many valid runs come before each (start bins are distinct).
+    before = jnp.zeros((width.shape[0], width.shape[0]), bool)
+    for key_k in reversed(keys):
+      lower = key_k[None, :] < key_k[:, None]
+      before = lower | ((key_k[None, :] == key_k[:, None]) & before)
+    rank = jnp.sum(before & runs.valid[None, :], axis=1)
     eligible = runs.valid
     order = jnp.where(eligible, rank.astype(jnp.float32), jnp.inf)
   else:
-    k_run, k_phi = jax.random.split(key)
-    weight = jnp.ones_like(width) if variant == "reg" else width
-    logits = jnp.where(runs.valid, jnp.log(jnp.maximum(weight, 1e-30)), -jnp.inf)
-    chosen = jax.random.categorical(k_run, logits)
-    phi = lo + jax.random.uniform(k_phi, lo.shape) * width
+    u = jax.random.uniform(key, (2,))
+    weight = jnp.where(runs.valid, 1.0 if variant == "reg" else width, 0.0)
+    chosen = _draw(weight, u[0])
+    phi = lo + u[1] * width  # only the chosen run's φ is used
     eligible = runs.valid & (jnp.arange(runs.valid.shape[0]) == chosen)
     order = jnp.where(eligible, 0.0, jnp.inf)
   fdet = in_run & (jnp.abs(K.wrap(phi_b[None, :] - phi[:, None])) <= 0.5 * cover[:, None])
@@ -306,7 +328,10 @@ def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radi
 
   def body(carry):
     open_c, key, _, _, _, _, rounds = carry
-    key, k_draw = jax.random.split(key)
+    if variant == "ereg":
+      k_draw = key
+    else:
+      key, k_draw = jax.random.split(key)
     runs = K.circular_runs(open_c)
     phi, fdet, order, eligible = _arc_candidates(variant, hierarchy, runs, rho_c, theta, r, radius,
                                                  k_draw)
@@ -341,12 +366,10 @@ def _select_srt(obstacle_c, rho_c, q_c, uv, valid_nodes, r, d_min_cells, i_max, 
   Returns (found, phi, dest).
   """
   bins = rho_c.shape[0]
-  k_bin, k_in = jax.random.split(key)
   free = ~obstacle_c
-  logits = jnp.where(free, 0.0, -jnp.inf)
-  drawn = jax.random.categorical(k_bin, logits, shape=(max_draws,))
-  phi = (-jnp.pi + (drawn.astype(jnp.float32) + jax.random.uniform(k_in, (max_draws,))) *
-         (2 * jnp.pi / bins))
+  u = jax.random.uniform(key, (2, max_draws))
+  drawn = _draw(free.astype(jnp.float32), u[0])
+  phi = -jnp.pi + (drawn.astype(jnp.float32) + u[1]) * (2 * jnp.pi / bins)
   dest = q_c[None, :] + (r * rho_c[drawn])[:, None] * _unit(phi)
   gap = dest[:, None, :] - uv[None, :, :]
   far = jnp.all((jnp.sum(gap * gap, axis=-1) >= d_min_cells**2) | ~valid_nodes[None, :], axis=1)
@@ -415,17 +438,16 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   new_open = ~rays.obstacle & leads_on(K.boundary_points(seen_from, rays.rho))
   # VERIFICATION reopens F_det, which the new LSR closes again where it covers it (step 3);
   # after a turn in place F_det stays closed and the node's arcs can only close.
-  open_ = mem.open.at[cur_safe].set(jnp.where(
-      stepped & (cur >= 0), mem.open[cur_safe] | mem.pending,
-      jnp.where(turned, mem.open[cur_safe] & new_open, mem.open[cur_safe])))
-  set_row = lambda array, value, row, when: array.at[row].set(jnp.where(when, value, array[row]))
+  set_row = _set_row
+  open_ = set_row(mem.open, mem.open[cur_safe] | mem.pending, cur_safe, stepped & (cur >= 0))
+  open_ = set_row(open_, mem.open[cur_safe] & new_open, cur_safe, turned)
   uv = set_row(mem.uv, here, new, create)
   rho = set_row(set_row(mem.rho, rays.rho, new, create), rays.rho, cur_safe, turned)
   obstacle = set_row(set_row(mem.obstacle, rays.obstacle, new, create), rays.obstacle, cur_safe,
                      turned)
   open_ = set_row(open_, new_open, new, create)
   link = create & stepped & (cur >= 0)
-  adjacent = mem.adjacent.at[new, cur_safe].max(link).at[cur_safe, new].max(link)
+  adjacent = mem.adjacent | (_pair(node_index, new, cur_safe) & link)
   parent = set_row(mem.parent, jnp.where(start, -1, cur), new, create)
   count = mem.count + create.astype(jnp.int32)
   # A hop that failed loses the edge it followed; a hop off the graph (a direct fallback) that
@@ -433,8 +455,8 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   hop_safe = jnp.maximum(mem.hop, 0)
   was_edge = mem.adjacent[cur_safe, hop_safe]
   cut = travel_failed & (mem.hop >= 0)
-  adjacent = adjacent.at[cur_safe, hop_safe].min(~cut).at[hop_safe, cur_safe].min(~cut)
-  open_ = open_.at[hop_safe].set(jnp.where(cut & ~was_edge, False, open_[hop_safe]))
+  adjacent = adjacent & ~(_pair(node_index, cur_safe, hop_safe) & cut)
+  open_ = set_row(open_, jnp.zeros((bins,), bool), hop_safe, cut & ~was_edge)
   current = jnp.where(create, new, jnp.where(travel_end & near, mem.hop, cur))
   c = jnp.maximum(current, 0)
   valid_nodes = node_index < count
@@ -449,7 +471,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     in_current = K.inside_lsr(ends, q_c, rho[c]) & others[:, None]
     in_others = jax.vmap(lambda q, rho_j: K.inside_lsr(ends[c], q, rho_j))(uv, rho)
     closes_current = jnp.any(in_others & others[:, None], axis=0)
-    intersected = (open_ & ~in_current).at[c].set(open_[c] & ~closes_current)
+    intersected = set_row(open_ & ~in_current, open_[c] & ~closes_current, c, True)
     samples = 2 * int(math.ceil(s.max_radius / res)) + 1
     bridge = others & (separation <= radius) & _segments_clear(view.traversable, q_c, uv, samples)
     bridged = adjacent | (bridge[None, :] & (node_index == c)[:, None]) | (
@@ -480,16 +502,18 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     def acceptable(points):
       # A step shorter than the arrival tolerance is a turn in place; a longer one must not land
       # on another node's place (the same step from the same arc again makes no progress).
-      offset = points - q_c
+      lead = (1,) * (points.ndim - 1)
+      offset = points - q_c.reshape(lead + (2,))
       short = jnp.sum(offset * offset, axis=-1) < tol * tol
-      gap = points[..., None, :] - uv
-      apart = jnp.all((jnp.sum(gap * gap, axis=-1) >= sep * sep) | ~others, axis=-1)
+      gap = points[..., None, :] - uv.reshape(lead + uv.shape)
+      apart = jnp.all((jnp.sum(gap * gap, axis=-1) >= sep * sep) | ~others.reshape(lead + (n,)),
+                      axis=-1)
       return standable(points) & (short | apart)
 
     found, phi, dest, fdet, open_c = _select_arc(
         variant, s.hierarchy, jnp.where(may_explore, open_[c], False), rho[c], q_c, theta, r,
         radius, acceptable, k_explore, bins + 1)
-    open_ = open_.at[c].set(jnp.where(may_explore, open_c, open_[c]))
+    open_ = _set_row(open_, open_c, c, may_explore)
     offset = dest - q_c
     turn = found & (jnp.sum(offset * offset) < tol * tol)
 

@@ -158,13 +158,14 @@ def circular_runs(mask) -> Runs:
   before = jnp.concatenate([jnp.zeros((1,), bool), rolled[:-1]])
   starts = rolled & ~before
   run_id = jnp.cumsum(starts.astype(jnp.int32)) - 1
-  segment = jnp.where(rolled, run_id, slots)
-  length = jax.ops.segment_sum(rolled.astype(jnp.int32), segment, num_segments=slots + 1)[:slots]
+  # Dense [M, B] membership (M·B is small): cheaper to compile than segment sums' scatters.
+  member = rolled[None, :] & (run_id[None, :] == jnp.arange(slots, dtype=jnp.int32)[:, None])
+  length = jnp.sum(member.astype(jnp.int32), axis=1)
   position = jnp.arange(bins, dtype=jnp.int32)
-  first = jax.ops.segment_min(jnp.where(rolled, position, bins), segment, num_segments=slots + 1)
+  first = jnp.min(jnp.where(member, position[None, :], bins), axis=1)
   count = jnp.sum(starts.astype(jnp.int32))
   valid = jnp.arange(slots) < count
-  start = jnp.where(valid, jnp.mod(first[:slots] + shift, bins), 0).astype(jnp.int32)
+  start = jnp.where(valid, jnp.mod(first + shift, bins), 0).astype(jnp.int32)
   return Runs(start=start, length=jnp.where(valid, length, 0), valid=valid, count=count)
 
 
