@@ -140,7 +140,9 @@ class Params:
   reloc_var_xy: Any = 1e-3  # measurement covariance R, m²
   reloc_var_theta: Any = 1e-3  # rad²
   # episode
-  coverage_goal: Any = 0.99  # fraction of reachable free area that counts as complete
+  # Fraction of reachable free area that counts as complete; above 1 coverage never ends an
+  # episode, only the planner (a planner that returns home, Toriz & Sánchez) or the step budget.
+  coverage_goal: Any = 0.99
   # planner weights (name -> scalar)
   planner: Any = dataclasses.field(default_factory=dict)
 
@@ -263,7 +265,7 @@ def validate_params(params: Params, config: SimConfig) -> None:
     check(name, getattr(p, name), lambda a: a >= 0, ">= 0")
   for name in ("sigma0", "reloc_var_xy", "reloc_var_theta"):
     check(name, getattr(p, name), positive, "> 0")
-  check("coverage_goal", p.coverage_goal, lambda a: (a > 0) & (a <= 1), "in (0, 1]")
+  check("coverage_goal", p.coverage_goal, lambda a: a > 0, "> 0 (above 1: never complete by coverage)")
   for name, value in p.planner.items():
     check(f"planner.{name}", value, lambda a: np.ones_like(a, bool), "finite")
 
