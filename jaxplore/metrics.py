@@ -143,3 +143,14 @@ def dopt_range(dopt_mean_curve) -> dict:
     return {"dopt_max": float("nan"), "dopt_min": float("nan"), "dopt_R": float("nan")}
   hi, lo = float(values.max()), float(values.min())
   return {"dopt_max": hi, "dopt_min": lo, "dopt_R": 100.0 * (hi - lo) / hi}
+
+
+def map_and_graph_row(logodds, truth_occupied, graph=None, dopt_curve=None) -> dict:
+  """One robot's map-quality columns and, with its final pose graph (NumPy leaves of a
+  :class:`jaxplore.posegraph.PoseGraph`), its connectivity and Table II columns."""
+  row = map_quality(logodds, truth_occupied)
+  if graph is not None:
+    row.update(graph_metrics(graph.chain_w, graph.loops, graph.loop_w, int(graph.n_nodes),
+                             int(graph.n_loops), int(graph.loops_dropped)))
+    row.update(dopt_range([] if dopt_curve is None else dopt_curve))
+  return row

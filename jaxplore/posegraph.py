@@ -4,9 +4,10 @@ The engine's SLAM side (every planner may have one; Ahmed et al. 2024 and the AG
 Placed & Castellanos 2021 reason about it). The authors ran Karto SLAM; this is a model of it
 with Karto's settings from the authors' configuration:
 
-* a keyframe every ``kf_dist`` metres or ``kf_rot`` radians of odometry *travelled* since the
-  previous one (path length and total turn, so that a run's keyframe count has an a-priori bound,
-  :func:`keyframe_bound`; Karto measures the displacement instead);
+* a keyframe when the odometry since the previous one (the increments compounded in its frame,
+  as Karto's travel check) has moved ``kf_dist`` metres or turned ``kf_rot`` radians; the
+  displacement is at most the distance and turn travelled, which gives a run's keyframe count an
+  a-priori bound (:func:`keyframe_bound`);
 * an odometry edge from the previous keyframe, of covariance ``σ_sm²·I`` (the scan matcher) plus
   the odometry covariance ``V_n`` (Li Eq 16) accumulated since that keyframe;
 * a loop-closure edge when a new keyframe is within ``loop_radius`` of a keyframe at least
@@ -59,7 +60,7 @@ class PoseGraph:
     loop_w: f32[M] their weights (0 past ``n_loops``).
     n_nodes: i32 keyframes. n_loops: i32 loop closures.
     loops_dropped: i32 loop closures found with the loop list full (not added).
-    acc_dist, acc_rot: f32 odometry distance (m) and total turn (rad) since the last keyframe.
+    acc_pose: f32[3] odometry since the last keyframe, in its frame (x, y m, θ rad).
     acc_cov: f32[3, 3] odometry covariance ``Σ V_n`` accumulated since the last keyframe.
   """
 
@@ -70,8 +71,7 @@ class PoseGraph:
   n_nodes: chex.Array
   n_loops: chex.Array
   loops_dropped: chex.Array
-  acc_dist: chex.Array
-  acc_rot: chex.Array
+  acc_pose: chex.Array
   acc_cov: chex.Array
 
 
@@ -84,7 +84,7 @@ def init(pose, node_capacity: int, loop_capacity: int) -> PoseGraph:
       loops=jnp.zeros((loop_capacity, 2), jnp.int32),
       loop_w=jnp.zeros((loop_capacity,), jnp.float32),
       n_nodes=jnp.int32(1), n_loops=jnp.int32(0), loops_dropped=jnp.int32(0),
-      acc_dist=jnp.float32(0), acc_rot=jnp.float32(0), acc_cov=jnp.zeros((3, 3), jnp.float32))
+      acc_pose=jnp.zeros((3,), jnp.float32), acc_cov=jnp.zeros((3, 3), jnp.float32))
 
 
 # --- edge weights --------------------------------------------------------------------------------
@@ -117,9 +117,9 @@ def keyframe_bound(max_steps: int, v_max, w_max, dt, kf_dist, kf_rot) -> int:
   """The most keyframes a run of ``max_steps`` steps can create (host side).
 
   A step drives at most ``v_max·dt`` and turns at most ``w_max·dt``; a keyframe is created when
-  the distance since the last one reaches ``kf_dist`` or the turn reaches ``kf_rot``, so each one
-  uses up at least one unit of ``distance / kf_dist + turn / kf_rot``, and at most one is created
-  per step. Array arguments (a sweep) give the largest bound over their values.
+  the displacement since the last one reaches ``kf_dist`` or its turn ``kf_rot``, and those are at
+  most the distance and turn travelled, so each keyframe uses up at least one unit of
+  ``distance / kf_dist + turn / kf_rot``; and at most one is created per step. Array arguments (a sweep) give the largest bound over their values.
   """
   per_step = float(np.max(np.asarray(v_max, np.float64) * np.asarray(dt, np.float64)
                           / np.asarray(kf_dist, np.float64)
@@ -159,16 +159,16 @@ def line_free(logodds, a_xy, b_xy, origin, res: float, free_logit, samples: int)
   return jnp.all(values < free_logit)
 
 
-def observe(graph: PoseGraph, pose, v_n, delta_d, delta_phi, active, logodds, origin, res: float,
-            params, los_samples: int) -> PoseGraph:
+def observe(graph: PoseGraph, pose, v_n, increment, active, logodds, origin, res: float, params,
+            los_samples: int) -> PoseGraph:
   """One motion step: accumulate odometry; add a keyframe, its odometry edge and at most one
-  loop closure when the travel since the last keyframe reaches a threshold.
+  loop closure when the odometry since the last keyframe moved or turned far enough.
 
   Args:
     graph: the robot's graph.
     pose: f32[3] the robot's estimated pose after the step.
     v_n: f32[3, 3] the step's odometry covariance (Li Eq 16).
-    delta_d, delta_phi: the step's odometry distance (m) and turn (rad).
+    increment: f32[3] the step's odometry (x, y, θ in the frame before the step; Li Eq 9).
     active: bool; the robot moved or turned (an inactive step changes nothing).
     logodds: f32[H, W] the belief (loop-closure line of sight).
     origin: f32[2] metres of cell (0, 0)'s corner. res: metres per cell.
@@ -178,11 +178,11 @@ def observe(graph: PoseGraph, pose, v_n, delta_d, delta_phi, active, logodds, or
   """
   n_cap = graph.poses.shape[0]
   m_cap = graph.loops.shape[0]
-  acc_dist = graph.acc_dist + jnp.where(active, delta_d, 0.0)
-  acc_rot = graph.acc_rot + jnp.where(active, jnp.abs(delta_phi), 0.0)
+  acc_pose = jnp.where(active, motion.compound(graph.acc_pose, increment), graph.acc_pose)
   acc_cov = graph.acc_cov + jnp.where(active, v_n, 0.0)
   i = graph.n_nodes
-  new = active & ((acc_dist >= params.kf_dist) | (acc_rot >= params.kf_rot)) & (i < n_cap)
+  moved = jnp.sqrt(acc_pose[0] ** 2 + acc_pose[1] ** 2)
+  new = active & ((moved >= params.kf_dist) | (jnp.abs(acc_pose[2]) >= params.kf_rot)) & (i < n_cap)
   sm_var = params.scan_match_sigma ** 2
   edge_cov = acc_cov + sm_var * jnp.eye(3, dtype=jnp.float32)
   w_odometry = jnp.cbrt(1.0 / _det3(edge_cov))
@@ -215,8 +215,7 @@ def observe(graph: PoseGraph, pose, v_n, delta_d, delta_phi, active, logodds, or
                    n_nodes=i + new.astype(jnp.int32),
                    n_loops=graph.n_loops + write.astype(jnp.int32),
                    loops_dropped=graph.loops_dropped + (closes & ~room).astype(jnp.int32),
-                   acc_dist=jnp.where(keep, acc_dist, 0.0), acc_rot=jnp.where(keep, acc_rot, 0.0),
-                   acc_cov=jnp.where(keep, acc_cov, 0.0))
+                   acc_pose=jnp.where(keep, acc_pose, 0.0), acc_cov=jnp.where(keep, acc_cov, 0.0))
 
 
 # --- dense kernels -------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from jaxplore import __version__, metrics, sim
+from jaxplore import __version__, metrics, posegraph, sim
 from jaxplore.config import (PRESETS, ConfigError, Params, SimConfig, config_for, make_params,
                              validate_params)
 from jaxplore.maps import GridMap, load_world
@@ -128,8 +128,13 @@ def default_chunk_epochs(config: SimConfig) -> int:
 
 def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, preset="li2020",
             res=None, start=None, max_steps=None, replan_every=None, params=None,
-            planner_params=None, pose_noise=False, path_capacity=None, plan_window=None):
-  """Resolves and validates every setting (no compute). Returns (grid, config, params, start)."""
+            planner_params=None, pose_noise=False, path_capacity=None, plan_window=None,
+            pose_graph=None, graph_loops=None):
+  """Resolves and validates every setting (no compute). Returns (grid, config, params, start).
+
+  ``pose_graph``: keep each robot's SLAM pose graph (None: when the planner needs one); its
+  keyframe capacity is the run's bound (:func:`jaxplore.posegraph.keyframe_bound`).
+  """
   if not isinstance(robots, (int, np.integer)) or robots < 1:
     raise ConfigError(f"robots must be a positive integer, got {robots!r}")
   spec = get_planner(planner)
@@ -146,6 +151,10 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
   if plan_window is not None:
     overrides["plan_window"] = int(plan_window)
   steps = int(max_steps) if max_steps is not None else default_max_steps(grid, p)
+  if pose_graph or (pose_graph is None and getattr(spec, "needs_pose_graph", False)):
+    overrides["graph_nodes"] = posegraph.keyframe_bound(steps, p.v_max, p.w_max, p.dt, p.kf_dist, p.kf_rot)
+    if graph_loops is not None:
+      overrides["graph_loops"] = int(graph_loops)
   config = config_for(grid.shape, grid.res, p, preset=preset, max_steps=steps, **overrides)
   validate_params(p, config)
   if spec.validate is not None:
@@ -157,7 +166,7 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
         start=None, max_steps=None, replan_every=None, params=None, planner_params=None,
         pose_noise=False, path_capacity=None, out=None, progress=True, devices=None,
         chunk_epochs=None, rate_interval=1.0, quiet=False, robot_seeds=None,
-        plan_window=None) -> RunResult:
+        plan_window=None, pose_graph=None, graph_loops=None) -> RunResult:
   """Runs ``robots`` robots exploring ``world`` with ``planner`` and returns/writes the results.
 
   Args:
@@ -182,10 +191,11 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
       split from ``seed``.
     plan_window: side in cells of the window nearest frontier plans on first (0 = whole grid
       always); default picked from the sensor range (``SimConfig.plan_window``).
+    pose_graph, graph_loops: see :func:`prepare`.
   """
   grid, config, p, start_pose = prepare(world, planner, robots, seed, preset, res, start, max_steps,
                                         replan_every, params, planner_params, pose_noise,
-                                        path_capacity, plan_window)
+                                        path_capacity, plan_window, pose_graph, graph_loops)
   need, have = estimate_bytes(config, robots), available_bytes()
   if need > 0.8 * have:
     raise ConfigError(f"{robots} robots on a {config.height}x{config.width} grid need about "
@@ -296,8 +306,10 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, params: Params, s
     order = np.lexsort((t_idx, r_idx))
     t_idx, r_idx = t_idx[order], r_idx[order]
     curves = pd.DataFrame({"robot": r_idx.astype(np.int32), "step": (t_idx + 1).astype(np.int32)})
-    for name in ("time", "distance", "entropy", "coverage", "det_cov", "pose_error", "x", "y"):
-      curves[name] = getattr(records, name)[t_idx, r_idx].astype(np.float64)
+    for name in ("time", "distance", "entropy", "coverage", "det_cov", "pose_error", "x", "y",
+                 "graph_nodes", "graph_edges", "dopt_mean"):
+      if getattr(records, name) is not None:
+        curves[name] = getattr(records, name)[t_idx, r_idx].astype(np.float64)
   initial = float(config.height * config.width * math.log(2.0))
   rows = []
   groups = dict(tuple(curves.groupby("robot"))) if len(curves) else {}
@@ -307,6 +319,10 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, params: Params, s
     if curve is not None and len(curve):
       row.update(metrics.episode_row(curve, initial, grid.res, n_reach, rate_interval))
     row["idle_steps"] = int(state.idle_steps[b])
+    graph = None if state.graph is None else jax.tree.map(lambda x: x[b], state.graph)
+    row.update(metrics.map_and_graph_row(
+        state.logodds[b], grid.occupied, graph,
+        None if curve is None or "dopt_mean" not in curve else curve.dopt_mean.to_numpy()))
     rows.append(row)
   return pd.DataFrame(rows), curves
 

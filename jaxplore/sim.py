@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
 
-from jaxplore import mapping, motion, sensor
+from jaxplore import mapping, motion, posegraph, sensor
 from jaxplore.config import ConfigError, Params, SimConfig, window_margin
 from jaxplore.maps.grid import GridMap
 from jaxplore.planners import base as planners_base
@@ -123,6 +123,8 @@ class State:
     time: f32 mission time (s); distance: f32 (m).
     entropy: f32 map entropy Σ Ĥ(c) over the grid (nats). covered: f32 reachable cells known free.
     done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
+    graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`), or None when
+      ``SimConfig.graph_nodes`` is 0.
   """
 
   key: chex.Array
@@ -148,6 +150,7 @@ class State:
   covered: chex.Array
   done: chex.Array
   reason: chex.Array
+  graph: posegraph.PoseGraph | None = None
 
 
 @chex.dataclass(frozen=True)
@@ -163,6 +166,10 @@ class Record:
   x: chex.Array  # true position, m
   y: chex.Array
   done: chex.Array  # bool
+  # With a pose graph (else None): keyframes, edges and the mean edge D-optimality (NaN: no edge).
+  graph_nodes: chex.Array | None = None
+  graph_edges: chex.Array | None = None
+  dopt_mean: chex.Array | None = None
 
 
 def to_cells(xy, origin, res):
@@ -279,7 +286,8 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       steps=jnp.int32(0), idle_steps=jnp.int32(0), since_plan=jnp.int32(0), busy=jnp.bool_(False),
       time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
-      done=jnp.bool_(False), reason=jnp.int32(RUNNING))
+      done=jnp.bool_(False), reason=jnp.int32(RUNNING),
+      graph=posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes else None)
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
   return _check_complete(world, params, state)
 
@@ -291,10 +299,17 @@ def _check_complete(world: World, params: Params, state: State) -> State:
 
 
 def record(world: World, state: State) -> Record:
+  graph = {}
+  if state.graph is not None:
+    g = state.graph
+    edges = g.n_nodes - 1 + g.n_loops
+    total = jnp.sum(g.chain_w) + jnp.sum(g.loop_w)
+    graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
+                 dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
                 coverage=state.covered / world.n_reachable, det_cov=jnp.linalg.det(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
-                x=state.pose[0], y=state.pose[1], done=state.done)
+                x=state.pose[0], y=state.pose[1], done=state.done, **graph)
 
 
 def step(config: SimConfig, world: World, params: Params, state: State) -> tuple[State, Record]:
@@ -337,6 +352,12 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                         time=state.time + jnp.where(busy, params.dt, 0.0),
                         distance=state.distance + delta_d)
   state = _sense(config, world, params, state, k_sense, busy)
+  if config.graph_nodes:
+    # Keyframes at the estimate after relocalisation; line of sight in the updated belief. The
+    # samples are half a cell apart for loops up to the sensor's range (validate_params).
+    state = state.replace(graph=posegraph.observe(
+        state.graph, state.pose_est, v_n, motion.increment(delta_d, delta_phi), busy, state.logodds,
+        world.origin, res, params, 2 * config.max_range_cells + 2))
   state = _check_complete(world, params, state)
   timeout = ~state.done & (state.steps >= config.max_steps)
   state = state.replace(done=state.done | timeout, reason=jnp.where(timeout, TIMEOUT, state.reason))
@@ -489,7 +510,7 @@ def _apply_plans(state: State, robots, outcome: PlanOutcome) -> State:
   ok = outcome.certified
   small = {}
   for field in dataclasses.fields(State):
-    if field.name in _MAP_FIELDS:
+    if field.name in _MAP_FIELDS or field.name == "graph":  # planning never changes the graph
       continue
     old, new = getattr(state, field.name), getattr(outcome.state, field.name)
     keep = ok.reshape(ok.shape + (1,) * (new.ndim - 1))
@@ -549,8 +570,8 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
     robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
 
     def plan_one(p, robot):
-      one = {f.name: getattr(state, f.name)[robot] for f in dataclasses.fields(State)
-             if f.name not in _MAP_FIELDS}
+      one = {f.name: jax.tree.map(lambda x: x[robot], getattr(state, f.name))
+             for f in dataclasses.fields(State) if f.name not in _MAP_FIELDS}
       cell = cell_of(one["pose_est"][:2], world.origin, config.res)
       origin = _window_origin(config, cell, window) if window else jnp.zeros((2,), jnp.int32)
       corner = (robot, origin[0], origin[1])

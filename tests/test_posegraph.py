@@ -8,7 +8,7 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from jaxplore import posegraph
+from jaxplore import motion, posegraph
 from jaxplore.config import ConfigError, make_params
 from tests.conftest import EAGER_AND_JIT
 
@@ -167,15 +167,16 @@ FREE_LOGIT = -3.0
 
 def observe_jit():
   return jax.jit(lambda g, pose, dd, dphi, logodds: posegraph.observe(
-      g, pose, jnp.diag(jnp.stack([dd, dd, dphi])) * 0.01, dd, dphi, jnp.bool_(True), logodds,
-      jnp.zeros(2), RES, PARAMS, 24))
+      g, pose, jnp.diag(jnp.stack([dd, dd, dphi])) * 0.01, motion.increment(dd, dphi), jnp.bool_(True),
+      logodds, jnp.zeros(2), RES, PARAMS, 24))
 
 
 OBSERVE = observe_jit()
 
 
 def drive(graph, poses, logodds):
-  """Feeds a sequence of estimated poses to ``observe`` (odometry = the differences)."""
+  """Feeds a sequence of estimated poses to ``observe``: each step turns by the heading change,
+  then drives straight to the next position (``dd`` along the new heading)."""
   prev = np.asarray(poses[0], np.float32)
   for pose in poses[1:]:
     pose = np.asarray(pose, np.float32)
