@@ -156,10 +156,10 @@ def _run_setup(run_dir: Path, config: dict, episodes: pd.DataFrame, robots) -> _
   import jax.numpy as jnp
 
   from jaxplore import runner, sim
-  from jaxplore.config import Params, SimConfig
+  from jaxplore.config import Params
   from jaxplore.maps import GridMap
 
-  sim_config = SimConfig(**config["sim_config"])
+  sim_config = sim.config_from_dict(config["sim_config"])
   with np.load(run_dir / "maps.npz") as stored:
     grid = GridMap(stored["occupied"], float(stored["res"]), tuple(np.asarray(stored["origin"]).tolist()),
                    config.get("world", {}).get("name", "map"))

@@ -1,12 +1,12 @@
 """Static configuration (shapes, loop bounds) and traced parameters (everything a user sweeps).
 
-The split follows ``../shared/DESIGN.md``: a hashable :class:`SimConfig` fixes every shape and loop
+A hashable :class:`SimConfig` fixes every shape and loop
 bound and is a compile-time constant; a :class:`Params` pytree holds the numbers a study may sweep
 (sensor, map model, motion, noise, planner weights). Changing a ``Params`` value never recompiles;
 a sweep over 256 settings is one ``vmap``.
 
-Presets carry the papers' values (``../shared/SPEC.md`` §1): ``li2020``, ``godoy_open``,
-``godoy_office``, ``toriz``, ``explore_bench``.
+Presets carry the papers' sensors and robots: ``li2020``, ``godoy_open``, ``godoy_office``,
+``toriz``, ``explore_bench``.
 """
 
 from __future__ import annotations
@@ -39,12 +39,18 @@ class SimConfig:
       (it always replans when its path is done).
     max_steps: the step budget of an episode (``timeout`` after it).
     planner: registry name of the planner.
-    pose_noise: corrupt odometry and dead-reckon the estimate (SPEC §1); when False the estimate
+    pose_noise: corrupt odometry and dead-reckon the estimate; when False the estimate
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
     max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
-    gain_radius_cells: ``R_e`` in cells as a static shape: the radius of the disc a path sweeps
-      in Li's information gain (Eq 20), which fixes the shape of its kernels.
+    r_e: Li et al.'s effective radius R_e in metres (Eq 5-6): the entropy map is updated within
+      ``R_u = alpha * R_e`` of the robot (Eq 7), and li2020's information gain sweeps a disc of
+      radius R_e along a path (Eq 20). Static: it fixes the shape of li2020's gain kernels.
+    entropy_map: keep Li's entropy map I_e (Eq 1-3) in the state and update it every step even
+      if the planner does not read it (it is always kept for one that does:
+      ``PlannerSpec.needs_entropy_map``).
+    planner_settings: the planner's static settings (its registered frozen dataclass, resolved;
+      None for a planner without settings).
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
     plan_chunk: robots planned together with ``vmap`` (:func:`jaxplore.sim.plan_where_needed`).
     plan_window: side in cells of the square window around the robot that a ``windowed``
@@ -69,7 +75,9 @@ class SimConfig:
   pose_noise: bool = False
   max_inflation_cells: int = 3
   max_update_radius_cells: int = 30
-  gain_radius_cells: float = 7.5
+  r_e: float = 0.75
+  entropy_map: bool = False
+  planner_settings: Any = None
   dijkstra_max_sweeps: int = 512
   plan_chunk: int = 4
   plan_window: int = 0
@@ -92,6 +100,8 @@ class SimConfig:
       raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
     if not (math.isfinite(self.res) and self.res > 0):
       raise ConfigError(f"res must be a positive number of metres, got {self.res!r}")
+    if not (isinstance(self.r_e, (int, float)) and math.isfinite(self.r_e) and self.r_e > 0):
+      raise ConfigError(f"r_e must be a positive number of metres, got {self.r_e!r}")
 
   @property
   def n_epochs(self) -> int:
@@ -107,7 +117,7 @@ class Params:
   scalars, so every planner can add its own without the simulator knowing them).
   """
 
-  # lidar (SPEC §1)
+  # lidar
   r_max: Any = 15.0  # max range, m
   fov: Any = math.radians(190.0)  # field of view, rad
   range_noise: Any = 0.0  # std of Gaussian range noise, m
@@ -120,14 +130,13 @@ class Params:
   p_occ: Any = 0.65  # and above this, occupied
   # entropy map (Li Eq 3, 5-7)
   entropy_k: Any = 0.5  # smoothing k of Eq 3
-  alpha: Any = 1.5  # R_u = alpha * R_e
-  r_e: Any = 0.75  # effective radius R_e, m
+  alpha: Any = 1.5  # R_u = alpha * R_e (R_e is static: SimConfig.r_e)
   # robot
   v_max: Any = 0.25  # m/s
   w_max: Any = 1.0  # rad/s
   dt: Any = 0.4  # s
   r_robot: Any = 0.2  # m
-  # localisation (Li Eq 16-17 and SPEC §1)
+  # localisation (Li Eq 16-17; relocalisation by a Kalman update)
   sigma_d: Any = 1.0
   sigma_phi: Any = 1.0
   sigma0: Any = 1e-4  # initial pose covariance, diag, m² and rad²
@@ -153,13 +162,20 @@ PARAM_FIELDS = tuple(f.name for f in dataclasses.fields(Params) if f.name != "pl
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
-  """A paper's sensor and robot: parameter overrides and static sizes."""
+  """A paper's sensor and robot: parameter overrides and static sizes.
+
+  Attributes:
+    step_cells: when set, a motion step moves the robot this many cells (``v_max = step_cells *
+      res``, ``dt = 1 s``), whatever the resolution: a grid simulator that moves one waypoint
+      (orthogonal or diagonal, so √2 cells) per step. Otherwise ``dt = res / v_max``.
+  """
 
   name: str
   description: str
   params: dict
   n_beams: int
   replan_every: int = 8
+  step_cells: float | None = None
 
 
 PRESETS: dict[str, Preset] = {
@@ -179,7 +195,7 @@ PRESETS: dict[str, Preset] = {
         "explore_bench",
         "Explore-Bench grid simulator: 3.5 m, 360°, one cell per step, replanning every step",
         dict(r_max=3.5, fov=math.radians(360.0), w_max=1e3, r_robot=0.1), n_beams=360,
-        replan_every=1),
+        replan_every=1, step_cells=math.sqrt(2.0)),
 }
 
 
@@ -188,7 +204,7 @@ def make_params(preset: str | None = None, *, res: float | None = None, planner:
   """Builds a validated :class:`Params` from a preset plus overrides.
 
   ``dt`` defaults to ``res / v_max`` (one cell of travel per step) when ``res`` is given and ``dt``
-  is not; the ``explore_bench`` preset moves one waypoint (orthogonal or diagonal) per step.
+  is not; a preset with ``step_cells`` moves that many cells per 1 s step instead.
   """
   values: dict[str, Any] = {}
   if preset is not None:
@@ -200,12 +216,12 @@ def make_params(preset: str | None = None, *, res: float | None = None, planner:
     raise ConfigError(f"unknown parameter(s) {sorted(unknown)}; valid: {', '.join(PARAM_FIELDS)}")
   values.update({k: v for k, v in overrides.items() if v is not None})
   if res is not None and "dt" not in overrides:
-    v_max = values.get("v_max", Params.v_max)
-    if preset == "explore_bench":
-      values["v_max"] = math.sqrt(2.0) * res
+    step_cells = PRESETS[preset].step_cells if preset is not None else None
+    if step_cells is not None:
+      values["v_max"] = step_cells * res
       values["dt"] = 1.0
     else:
-      values["dt"] = res / v_max
+      values["dt"] = res / values.get("v_max", Params.v_max)
   params = Params(**{k: jnp.float32(v) for k, v in values.items()},
                   planner={k: jnp.float32(v) for k, v in (planner or {}).items()})
   return params
@@ -244,12 +260,11 @@ def validate_params(params: Params, config: SimConfig) -> None:
   check("p_occ", p.p_occ, lambda a: (a > 0.5) & (a < 1), "in (0.5, 1)")
   check("entropy_k", p.entropy_k, lambda a: (a >= 0) & (a < 1), "in [0, 1)")
   check("alpha", p.alpha, positive, "> 0")
-  check("r_e", p.r_e, positive, "> 0")
   check("v_max", p.v_max, positive, "> 0")
   check("w_max", p.w_max, positive, "> 0")
   check("dt", p.dt, positive, "> 0")
   max_ru = config.max_update_radius_cells * config.res
-  check("alpha", np.asarray(p.alpha) * np.asarray(p.r_e), lambda a: a <= max_ru + 1e-6,
+  check("alpha", np.asarray(p.alpha) * config.r_e, lambda a: a <= max_ru + 1e-6,
         f"such that alpha * r_e <= max_update_radius_cells * res = {max_ru:.3g} m")
   check("r_robot", p.r_robot, lambda a: a >= 0, ">= 0")
   max_rr = config.max_inflation_cells * config.res
@@ -318,13 +333,12 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
   """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``."""
   r_max = float(np.max(np.asarray(params.r_max)))
   r_robot = float(np.max(np.asarray(params.r_robot)))
-  r_u = float(np.max(np.asarray(params.alpha) * np.asarray(params.r_e)))
+  r_u = float(np.max(np.asarray(params.alpha))) * float(overrides.get("r_e", SimConfig.r_e))
   kwargs = dict(
       height=int(world_shape[0]), width=int(world_shape[1]), res=float(res),
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
       max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
-      gain_radius_cells=float(np.max(np.asarray(params.r_e))) / res,
   )
   if preset is not None:
     kwargs["n_beams"] = PRESETS[preset].n_beams

@@ -1,4 +1,5 @@
-"""Per-episode summaries and summaries over seeds (SPEC §5), host side (NumPy/pandas).
+"""Per-episode summaries and summaries over seeds, host side (NumPy/pandas): Li et al. 2020's
+E_r and Std(E_r), times to coverage, Godoy-Calvo et al.'s Tables 3-4 layout.
 
 Curves come from the engine's per-step :class:`jaxplore.sim.Record` (one row per robot and step);
 episodes are one row per robot.

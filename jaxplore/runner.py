@@ -102,18 +102,38 @@ def parse_start(start) -> tuple[float, float, float] | None:
   return (values[0], values[1], values[2] if len(values) == 3 else 0.0)
 
 
+# Settings a user gives like parameters (``--set r_e=1.0``) that fix a shape, so they are static
+# (``SimConfig``), not traced: one value per batch.
+STATIC_PARAMS = ("r_e",)
+
+
+def split_static(params: dict | None) -> tuple[dict, dict]:
+  """Splits parameter overrides into (traced, static): see :data:`STATIC_PARAMS`. A static value
+  given per robot must be the same for all of them."""
+  traced, static = {}, {}
+  for name, value in (params or {}).items():
+    if name not in STATIC_PARAMS:
+      traced[name] = value
+      continue
+    values = np.unique(np.asarray(value, np.float64))
+    if values.size != 1:
+      raise ConfigError(f"{name} fixes a shape and must be one value per batch, got {values}")
+    static[name] = float(values[0])
+  return traced, static
+
+
 def build_params(planner: str, preset, res: float, params=None, planner_params=None) -> Params:
   """The :class:`Params` of a run: preset, overrides, the planner's default weights and overrides.
 
   Leaves may be scalars or arrays with one value per robot (a sweep). No validation of values.
+  Static settings among the overrides (:data:`STATIC_PARAMS`, the planner's settings) are left
+  out: :func:`prepare` puts them into the ``SimConfig``.
   """
-  weights = dict(get_planner(planner).defaults)
-  unknown = set(planner_params or {}) - set(weights)
-  if unknown:
-    raise ConfigError(f"planner {planner!r} has no parameter(s) {sorted(unknown)}; "
-                      f"it has: {', '.join(sorted(weights)) or 'none'}")
-  weights.update(planner_params or {})
-  return make_params(preset, res=res, planner=weights, **(params or {}))
+  spec = get_planner(planner)
+  traced_weights, _ = spec.split_overrides(planner_params)
+  weights = dict(spec.defaults)
+  weights.update(traced_weights)
+  return make_params(preset, res=res, planner=weights, **split_static(params)[0])
 
 
 def robot_keys(seeds) -> jax.Array:
@@ -143,7 +163,10 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
   grid = world if isinstance(world, GridMap) else load_world(world, res=res)
   start_pose = parse_start(start)
   p = build_params(planner, preset, grid.res, params, planner_params)
-  overrides = dict(planner=planner, pose_noise=bool(pose_noise))
+  _, static = split_static(params)
+  _, settings = spec.split_overrides(planner_params)
+  overrides = dict(planner=planner, pose_noise=bool(pose_noise),
+                   planner_settings=spec.resolve_settings(settings), **static)
   if replan_every is not None:
     overrides["replan_every"] = int(replan_every)
   if path_capacity is not None:
@@ -151,14 +174,14 @@ def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, prese
   if plan_window is not None:
     overrides["plan_window"] = int(plan_window)
   steps = int(max_steps) if max_steps is not None else default_max_steps(grid, p)
-  if pose_graph or (pose_graph is None and getattr(spec, "needs_pose_graph", False)):
+  if pose_graph or (pose_graph is None and spec.needs_pose_graph):
     overrides["graph_nodes"] = posegraph.keyframe_bound(steps, p.v_max, p.w_max, p.dt, p.kf_dist, p.kf_rot)
     if graph_loops is not None:
       overrides["graph_loops"] = int(graph_loops)
   config = config_for(grid.shape, grid.res, p, preset=preset, max_steps=steps, **overrides)
   validate_params(p, config)
   if spec.validate is not None:
-    spec.validate({k: np.asarray(v) for k, v in p.planner.items()}, p, config)
+    spec.validate({k: np.asarray(v) for k, v in p.planner.items()}, p, sim.planner_context(config))
   return grid, config, p, start_pose
 
 
@@ -273,6 +296,8 @@ def run(world="office", planner="nearest_frontier", robots=16, seed=0, preset="l
       "sim_config": dataclasses.asdict(config),
       "params": {k: _to_float(v) for k, v in dataclasses.asdict(p).items() if k != "planner"},
       "planner_params": {k: _to_float(v) for k, v in p.planner.items()},
+      "planner_settings": (dataclasses.asdict(config.planner_settings)
+                           if config.planner_settings is not None else {}),
       "rate_interval_m": rate_interval,
   }
   robot_steps = int(np.asarray(state_np.steps).sum())

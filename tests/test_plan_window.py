@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplore import sim
+from jaxplore import planning, sim
 from jaxplore.config import auto_plan_window, config_for, make_params, plan_reach_cells
 from jaxplore.maps import generate
 from jaxplore.planners import base, frontier
@@ -38,10 +38,12 @@ def full_and_window_plans(config, world, params, states, window):
   def both(p, s):
     robot = sim.robot_view(config, world, s)
     key = jax.random.PRNGKey(0)
-    full = base.get_planner(config.planner).plan(config, sim.belief_view(config, p, s, robot.cell),
+    full = base.get_planner(config.planner).plan(sim.planner_context(config),
+                                                 sim.belief_view(config, p, s, robot.cell),
                                                  robot, p, key)
-    origin = sim._window_origin(config, robot.cell, window)
-    local, certified = sim._propose(config, p, sim.crop_maps(s, origin, (window, window)), robot, origin, key)
+    origin = planning._window_origin(config, robot.cell, window)
+    local, _, certified = planning._propose(config, p, sim.crop_maps(s, origin, (window, window)),
+                                            robot, origin, key)
     view = sim.belief_view(config, p, s, robot.cell)
     node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
     dist, _ = frontier.reachable_paths(config, view, robot, node_cost)

@@ -89,6 +89,8 @@ DEFAULTS = {
     "min_unknown_area": 0.45,  # m² of unknown cells within filter_radius
     "min_robot_dist": 0.25,  # m
 }
+# AGS has no path entropy and no distance decay.
+AGS_DEFAULTS = {k: v for k, v in DEFAULTS.items() if k not in ("lambda", "gamma_cells", "p_unknown", "p_known")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,14 +114,15 @@ class Settings:
   cluster_m: float = 1.5
 
 
-def validate(weights, params, config, settings: Settings = Settings()):
+def validate(weights, params, ctx):
   """Host-side checks of the weights (probabilities, radii within the static disc)."""
+  settings = ctx.settings
   w = {k: np.asarray(v) for k, v in weights.items()}
   for name in ("p_unknown", "p_known"):
-    if np.any((w[name] <= 0) | (w[name] >= 1)):
+    if name in w and np.any((w[name] <= 0) | (w[name] >= 1)):
       raise ConfigError(f"ahmed: {name} must be in (0, 1), got {w[name]}")
   for name in ("even", "gamma_cells"):
-    if np.any(~np.isin(w[name], [0.0, 1.0])):
+    if name in w and np.any(~np.isin(w[name], [0.0, 1.0])):
       raise ConfigError(f"ahmed: {name} must be 0 or 1, got {w[name]}")
   for name in ("info_radius", "filter_radius"):
     if np.any((w[name] <= 0) | (w[name] > settings.disc_m + 1e-6)):
@@ -379,3 +382,21 @@ def plan_graph(ctx, view, robot, params, key, graph, settings: Settings, with_en
                    gain=jnp.where(valid, utility[best], 0.0).astype(jnp.float32),
                    cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),
                    n_candidates=jnp.sum(keep).astype(jnp.int32))
+
+
+SUMMARY_AHMED = "Ahmed et al. 2024 Eq 9: frontier of largest U1 (hallucinated spanning trees) + path entropy + γ"
+SUMMARY_AGS = "Placed & Castellanos' AGS: frontier of largest U1 (hallucinated pose graph's spanning trees)"
+
+
+@base.register("ahmed", defaults=DEFAULTS, summary=SUMMARY_AHMED, settings=Settings(), validate=validate,
+               needs_pose_graph=True, commits=True)
+def plan_ahmed(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
+  """Eq 9: ``U = U1 + (1 − E/K)·ρ + γ``, largest wins (see the module docstring)."""
+  return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings, with_entropy=True)
+
+
+@base.register("ags", defaults=AGS_DEFAULTS, summary=SUMMARY_AGS, settings=Settings(), validate=validate,
+               needs_pose_graph=True, commits=True)
+def plan_ags(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
+  """AGS: ``U = U1`` (Eq 8), largest wins; ahmed's candidates and hallucination."""
+  return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings, with_entropy=False)

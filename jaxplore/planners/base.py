@@ -1,14 +1,26 @@
-"""The planner interface shared by every paper's planner, and the registry.
+"""The planner contract shared by every paper's planner, and the registry.
 
-A planner is a pure function ``plan(config, view, robot, params, key) -> Plan`` for ONE robot
-(the engine batches it). It sees the belief, never the truth. The simulator knows nothing about
-any one paper: it calls the planner named in ``SimConfig.planner``.
+A planner plans for ONE robot (the engine batches it with ``vmap``) and sees the belief, never
+the truth. The engine knows no paper: a planner declares what it needs when it registers (its
+traced weights, its static settings, whether it reads Li's entropy map, a per-robot memory,
+whether it commits to a goal, a per-step hook) and the engine provides exactly that.
+
+Two signatures:
+
+- stateless: ``plan(ctx, view, robot, params, key) -> Plan``;
+- with memory (``init_memory`` given): ``plan(ctx, view, robot, params, key, memory) ->
+  (Plan, memory)``, ``init_memory(ctx, params) -> memory`` (a pytree of fixed shapes for one
+  robot, kept in ``State.memory`` and written back only for robots that planned).
+
+``ctx`` is a :class:`PlannerContext` (static: the grid the planner sees, its resolution, the
+path capacity, solver bounds, the planner's own settings); ``params`` holds the traced numbers
+(sensor, robot, ``params.planner[name]`` weights).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from typing import Any, Callable
 
 import chex
 import jax
@@ -18,18 +30,48 @@ from jaxplore import mapping
 from jaxplore.config import ConfigError
 
 
+@dataclasses.dataclass(frozen=True)
+class PlannerContext:
+  """Static facts a planner may use (hashable, part of the compiled program's cache key).
+
+  Attributes:
+    height, width: the grid the planner sees (a window's, when the engine plans on one).
+    res: metres per cell.
+    path_capacity: waypoints a :class:`Plan` holds.
+    dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path solver.
+    max_inflation_cells: bound of the robot radius in cells.
+    max_steps: the episode's step budget (for capacity checks before compute).
+    r_e_cells: Li et al.'s effective radius R_e (Eq 5-6) in cells, the radius of the entropy
+      map's update region; 0 when the engine keeps no entropy map.
+    settings: the planner's static settings (its registered frozen dataclass, resolved), or None.
+  """
+
+  height: int
+  width: int
+  res: float
+  path_capacity: int = 256
+  dijkstra_max_sweeps: int = 512
+  max_inflation_cells: int = 3
+  max_steps: int = 2000
+  r_e_cells: float = 0.0
+  settings: Any = None
+
+
 @chex.dataclass(frozen=True)
 class BeliefView:
   """What a planner may look at (one robot).
 
   Attributes:
     logodds: f32[H, W] occupancy belief.
-    entropy_map: f32[H, W] Li's smoothed entropy map I_e (Eq 3).
+    entropy_map: f32[H, W] Li's smoothed entropy map I_e (Eq 3); None unless the planner
+      registered ``needs_entropy_map``.
     free, occupied, unknown: bool[H, W] belief classes.
     inflated: bool[H, W] cells within the robot radius of a believed-occupied cell.
     traversable: bool[H, W] free cells clear of occupied cells by the robot radius.
     frontier: bool[H, W] free cells next to unknown ones (see :func:`mapping.frontier`).
     blacklist: bool[H, W] goals the engine found unresolvable for this robot.
+    pose_graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`); None unless
+      the planner registered ``needs_pose_graph``.
   """
 
   logodds: chex.Array
@@ -41,6 +83,7 @@ class BeliefView:
   traversable: chex.Array
   frontier: chex.Array
   blacklist: chex.Array
+  pose_graph: Any = None
 
 
 @chex.dataclass(frozen=True)
@@ -83,46 +126,136 @@ PlanFn = Callable[..., Plan]
 
 @dataclasses.dataclass(frozen=True)
 class PlannerSpec:
-  """A registered planner.
+  """A registered planner: its function and what it asks of the engine.
 
   Attributes:
     name: registry name (command line ``--planner``).
-    plan: the plan function.
-    defaults: default weights (traced leaves of ``Params.planner``).
+    plan: the plan function (see the module docstring for its two signatures).
+    defaults: traced weights, name -> default value (``params.planner[name]``; sweeping them
+      never recompiles).
     summary: one line for listings.
+    settings: the planner's static settings, a frozen dataclass instance holding their defaults
+      (``ctx.settings``; a change recompiles; they may fix shapes), or None.
+    validate: optional host-side check before compute,
+      ``validate(weights: dict[str, np.ndarray], params, ctx) -> None``, raising ``ConfigError``.
+    needs_entropy_map: the planner reads Li et al.'s entropy map I_e (Eq 1-3); the engine keeps
+      it only for such planners.
+    needs_pose_graph: the planner reads the robot's SLAM pose graph (``view.pose_graph``); the
+      engine keeps one for such planners (for the others only when asked, for its metrics).
+    init_memory: ``init_memory(ctx, params) -> memory`` for a planner with per-robot memory.
+    commits: the robot drives to its chosen goal before the planner decides again (it replans
+      only when its path is done or blocked, never every ``replan_every`` steps).
+    step_hook: ``step_hook(ctx, params, memory, robot, logodds, moved) -> memory``, run after
+      every motion step of a running robot (after its scan is integrated), for memories that
+      grow while the robot moves; planners without one pay nothing.
     blacklist_on_arrival: the engine blacklists a goal once the robot has reached the end of
       the path to it (Ahmed's FD), so it is never chosen again.
-    validate: optional host-side check of the resolved weights and config,
-      ``validate(weights: dict[str, array], params, config) -> None``, raising ``ConfigError``.
     windowed: the planner picks the candidate with the smallest path cost over unit node costs
       (``Plan.cost`` in metres, each step costing at least its length), so a plan made on a
-      window around the robot is the whole grid's plan when its cost is below the distance to
-      the window's edge (:func:`jaxplore.sim.plan_where_needed` then skips the whole grid).
+      window around the robot can be certified as the whole grid's
+      (:mod:`jaxplore.planners.window`).
   """
 
   name: str
   plan: PlanFn
-  defaults: dict
-  summary: str
-  blacklist_on_arrival: bool = False
+  defaults: dict = dataclasses.field(default_factory=dict)
+  summary: str = ""
+  settings: Any = None
   validate: Callable | None = None
+  needs_entropy_map: bool = False
+  needs_pose_graph: bool = False
+  init_memory: Callable | None = None
+  commits: bool = False
+  step_hook: Callable | None = None
+  blacklist_on_arrival: bool = False
   windowed: bool = False
+
+  @property
+  def has_memory(self) -> bool:
+    return self.init_memory is not None
+
+  def initial_memory(self, ctx: PlannerContext, params):
+    """The memory of one robot at reset (an empty tuple for a planner without memory)."""
+    return self.init_memory(ctx, params) if self.has_memory else ()
+
+  def propose(self, ctx: PlannerContext, view, robot, params, key, memory):
+    """One call of the plan function under either signature: returns (Plan, memory)."""
+    if self.has_memory:
+      return self.plan(ctx, view, robot, params, key, memory)
+    return self.plan(ctx, view, robot, params, key), memory
+
+  def resolve_settings(self, overrides: dict | None = None):
+    """The static settings with ``overrides`` (name -> value) applied, each converted to the
+    type of its default; a name that is no setting is a ``ConfigError``."""
+    overrides = dict(overrides or {})
+    if not overrides:
+      return self.settings
+    fields = {f.name: f for f in dataclasses.fields(self.settings)} if self.settings else {}
+    unknown = set(overrides) - set(fields)
+    if unknown:
+      raise ConfigError(f"planner {self.name!r} has no setting(s) {sorted(unknown)}; "
+                        f"it has: {', '.join(sorted(fields)) or 'none'}")
+    converted = {}
+    for name, value in overrides.items():
+      kind = type(getattr(self.settings, name))
+      try:
+        converted[name] = kind(value) if kind is not bool else _as_bool(value)
+      except (TypeError, ValueError):
+        raise ConfigError(f"planner {self.name!r}: setting {name} must be a {kind.__name__}, "
+                          f"got {value!r}") from None
+    return dataclasses.replace(self.settings, **converted)
+
+  def split_overrides(self, overrides: dict | None):
+    """Splits user overrides (``--planner-set``) into (traced weights, static settings)."""
+    overrides = dict(overrides or {})
+    names = {f.name for f in dataclasses.fields(self.settings)} if self.settings else set()
+    static = {k: v for k, v in overrides.items() if k in names}
+    traced = {k: v for k, v in overrides.items() if k not in names}
+    unknown = set(traced) - set(self.defaults)
+    if unknown:
+      raise ConfigError(f"planner {self.name!r} has no parameter(s) {sorted(unknown)}; it has: "
+                        f"{', '.join(sorted(set(self.defaults) | names)) or 'none'}")
+    return traced, static
+
+
+def _as_bool(value) -> bool:
+  if isinstance(value, str):
+    if value.lower() in ("1", "true", "yes", "on"):
+      return True
+    if value.lower() in ("0", "false", "no", "off"):
+      return False
+    raise ValueError(value)
+  return bool(value)
 
 
 _REGISTRY: dict[str, PlannerSpec] = {}
 
 
-def register(name: str, defaults: dict | None = None, summary: str = "",
-             blacklist_on_arrival: bool = False, validate: Callable | None = None,
+def register(name: str, defaults: dict | None = None, summary: str = "", *, settings=None,
+             validate: Callable | None = None, needs_entropy_map: bool = False,
+             needs_pose_graph: bool = False, init_memory: Callable | None = None, commits: bool = False,
+             step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
              windowed: bool = False):
-  """Decorator adding a plan function to the registry under ``name``."""
+  """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`)."""
+  if settings is not None and not (dataclasses.is_dataclass(settings) and
+                                   settings.__dataclass_params__.frozen):
+    raise TypeError(f"planner {name!r}: settings must be a frozen dataclass instance")
 
   def wrap(fn):
-    _REGISTRY[name] = PlannerSpec(name, fn, dict(defaults or {}), summary, blacklist_on_arrival,
-                                  validate, windowed)
+    _REGISTRY[name] = PlannerSpec(
+        name=name, plan=fn, defaults=dict(defaults or {}), summary=summary, settings=settings,
+        validate=validate, needs_entropy_map=needs_entropy_map, needs_pose_graph=needs_pose_graph,
+        init_memory=init_memory,
+        commits=commits, step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival,
+        windowed=windowed)
     return fn
 
   return wrap
+
+
+def unregister(name: str) -> None:
+  """Removes a planner from the registry (tests that register their own planners)."""
+  _REGISTRY.pop(name, None)
 
 
 def get_planner(name: str) -> PlannerSpec:

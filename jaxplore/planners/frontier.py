@@ -1,9 +1,12 @@
-"""Nearest frontier (Yamauchi 1997; Li 2020's "Method 11"), SPEC §4.
+"""Nearest frontier (Yamauchi 1997; Li et al. 2020's "Method 11") and FD (Ahmed et al.).
 
 Frontier = belief-free cell with an unknown 8-neighbour (:func:`jaxplore.mapping.frontier`); the
 robot goes to the frontier cell with the smallest path cost over the 8-connected traversable
 graph (one Dijkstra from the robot). Frontier cells within the robot radius of a wall are
 reached by looking from the nearest traversable cell (:func:`jaxplore.graph.extend.extend_into`).
+``fd`` is the same planner with every frontier goal blacklisted once reached (Ahmed et al.'s
+"FD"). Both pick the candidate of smallest unit-cost path, so the engine may plan them on a
+window around the robot first (``windowed``; :mod:`jaxplore.planners.window`).
 """
 
 from __future__ import annotations
@@ -52,3 +55,15 @@ def plan_nearest_frontier(config, view: base.BeliefView, robot: base.RobotView, 
   cells, length, look_at = plan_to(config, view, robot, pred, goal, valid)
   return base.Plan(waypoints=cells, length=length, goal=goal, look_at=look_at, valid=valid,
                    gain=jnp.float32(0), cost=cost, n_candidates=jnp.sum(candidates).astype(jnp.int32))
+
+
+@base.register("fd", summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)",
+               blacklist_on_arrival=True, windowed=True)
+def plan_fd(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
+  """Nearest frontier that never returns to a reached frontier goal (Ahmed et al.'s FD).
+
+  The planning is :func:`plan_nearest_frontier`'s (it already skips blacklisted and unreachable
+  frontier cells); the registration asks the engine to blacklist the goal once the robot has
+  reached the end of its path.
+  """
+  return plan_nearest_frontier(config, view, robot, params, key)

@@ -1,12 +1,10 @@
-"""Godoy-Calvo et al. 2023, "Dynamic entropy-based method for exploring frontiers" (SPEC §4).
+"""Godoy-Calvo et al. 2023, "Dynamic entropy-based method for exploring frontiers".
 
-Three planners:
+Two planners:
 
 * ``frt`` — the paper's frontier baseline, Eq 12: ``U' = C_d·d − C_i·A``.
 * ``ig`` — the paper's method, Eq 3: ``U = C_d·d − C_i·f·I`` with the expectation function of
   Eq 4 / Figure 1, the information gain of Eq 9 and the obstacle factor of Eq 5 (Algorithm 1).
-* ``fd`` — nearest frontier that never returns to a frontier goal it has reached (Ahmed et al.'s
-  "FD"; the engine blacklists the goal on arrival).
 
 Shared by ``frt`` and ``ig`` (§4.1: "only the centroids of the frontiers are candidates"):
 frontier cells (:func:`jaxplore.mapping.frontier`) are grouped into 8-connected clusters
@@ -68,7 +66,7 @@ from jaxplore import mapping
 from jaxplore.config import ConfigError
 from jaxplore.graph import labels
 from jaxplore.planners import base
-from jaxplore.planners.frontier import plan_nearest_frontier, plan_to, reachable_paths
+from jaxplore.planners.frontier import plan_to, reachable_paths
 
 # Frontier clusters scored per planning round; smaller clusters beyond this many are ignored.
 MAX_CLUSTERS = 128
@@ -281,15 +279,3 @@ def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -
   d = _distance(candidates, dist, w["d_path"])
   cost = w["C_d"] * d - w["C_i"] * hood.factor * hood.info
   return _plan_lowest_cost(config, view, robot, dist, pred, candidates, cost)
-
-
-@base.register("fd", summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)",
-               blacklist_on_arrival=True, windowed=True)
-def plan_fd(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
-  """Nearest frontier that never returns to a reached frontier goal (Ahmed et al.'s FD).
-
-  The planning is :func:`jaxplore.planners.frontier.plan_nearest_frontier`'s (it already skips
-  blacklisted and unreachable frontier cells); the registration asks the engine to blacklist
-  the goal once the robot has reached the end of its path.
-  """
-  return plan_nearest_frontier(config, view, robot, params, key)

@@ -1,4 +1,6 @@
-"""The entropy-boundary planner of Li et al. 2020 (Algorithm 1), as ``../shared/SPEC.md`` §3 reads it.
+"""The entropy-boundary planner of Li, Yang, Wang and Wang 2020, "A high-efficiency,
+information-based exploration path planning method for active simultaneous localization and
+mapping" (Algorithm 1).
 
 One planning round for one robot:
 
@@ -12,7 +14,7 @@ One planning round for one robot:
    - the dead-reckoning covariance Σ at the end of the path (Eq 16–17; the compounding
      Jacobians of a path multiply to ``I + N(total displacement)``, so Σ reduces to a few running
      sums along the path, see :func:`_covariance_from_sums`);
-   - the information gain of the path (Eq 20–21 as SPEC reads them): the expected decrease of
+   - the information gain of the path (Eq 20–21; Eq 21's garbled sign read as a decrease): the expected decrease of
      ``I_e`` over the union of cells within ``R_e`` of its waypoints, each cell once. A waypoint
      adds the cells of its ``R_e`` disc that are not in its parent's disc (a "crescent"); this
      counts every cell once unless a path leaves a cell's disc and later comes back into it
@@ -62,7 +64,7 @@ DEFAULTS = {
 CHANNELS = ("gain", "reexplore", "length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
 
 
-def validate(weights, params, config):
+def validate(weights, params, ctx):
   k1, k2 = np.asarray(weights["k1"]), np.asarray(weights["k2"])
   if np.any(k1 < 0) or np.any(k2 >= 1) or np.any(k1 >= k2):
     raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got k1={k1}, k2={k2}")
@@ -70,11 +72,6 @@ def validate(weights, params, config):
     raise ConfigError("li2020: det_sigma_max must be > 0")
   if np.any(~np.isin(np.asarray(weights["select"]), [0.0, 1.0])):
     raise ConfigError("li2020: select must be 0 (max gain) or 1 (max gain per metre)")
-  r_e = np.asarray(params.r_e) / config.res
-  if np.any(np.abs(r_e - config.gain_radius_cells) > 1e-4):
-    raise ConfigError(f"li2020: r_e fixes the shape of the gain kernel (SimConfig.gain_radius_cells="
-                      f"{config.gain_radius_cells * config.res:.3g} m) and cannot differ within a batch; "
-                      f"got r_e = {np.unique(np.asarray(params.r_e))} m")
 
 
 def boundaries(view: base.BeliefView, tau_e):
@@ -130,7 +127,7 @@ def observable_cells(view: base.BeliefView, radius: float):
 
 
 def cell_gains(view: base.BeliefView, params, h0, radius: float):
-  """Per-cell expected entropy decrease (Eq 20–21 with SPEC's sign) and re-explore term (Eq 22).
+  """Per-cell expected entropy decrease (Eq 20–21, read as a decrease) and re-explore term (Eq 22).
 
   ``H'(c) = k·H(c) + (1−k)·H_obs`` where ``H_obs`` is the entropy of a cell after one free
   observation, so the gain of a cell is ``(1−k)·(H(c) − H_obs)`` where positive.
@@ -230,7 +227,7 @@ def tree_quantities(config, view, robot, params, pred, gains):
   xy = jnp.stack([(cols - robot.cell[1]) * res, (rows - robot.cell[0]) * res], -1).astype(jnp.float32)
 
   # Crescent of new cells per parent direction (the root gets its whole disc).
-  radius = config.gain_radius_cells
+  radius = config.r_e_cells
   pad = int(math.floor(radius)) + 1
   new_cells = jnp.zeros((2, h * w), jnp.float32)
   for (di, dj), offsets in crescents(radius).items():
@@ -257,7 +254,7 @@ def average_observable_entropy(view: base.BeliefView, radius: float):
   return jnp.sum(jnp.where(observable, entropy, 0.0)) / jnp.maximum(jnp.sum(observable), 1)
 
 
-@base.register("li2020", defaults=DEFAULTS, validate=validate,
+@base.register("li2020", defaults=DEFAULTS, validate=validate, needs_entropy_map=True,
                summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")
 def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key):
   weights = params.planner
@@ -266,7 +263,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   sp = shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]), robot.cell,
                       max_sweeps=config.dijkstra_max_sweeps)
   reachable = jnp.isfinite(sp.dist).ravel()
-  gains = cell_gains(view, params, weights["h0"], config.gain_radius_cells)
+  gains = cell_gains(view, params, weights["h0"], config.r_e_cells)
   sums, cov, _ = tree_quantities(config, view, robot, params, sp.pred, gains)
   root = robot.cell[0] * w + robot.cell[1]
   idx = jnp.arange(h * w, dtype=jnp.int32)
@@ -291,7 +288,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   fallback_score = jnp.where(boundary, reexplore, -jnp.inf)
   fallback = reductions.argmax(fallback_score, w)
   can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
-  converged = (weights["e_min"] > 0) & (average_observable_entropy(view, config.gain_radius_cells) < weights["e_min"])
+  converged = (weights["e_min"] > 0) & (average_observable_entropy(view, config.r_e_cells) < weights["e_min"])
 
   chosen = jnp.where(explore, best, fallback)
   valid = (explore | can_fallback) & ~converged

@@ -10,7 +10,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from jaxplore import mapping
-from jaxplore.config import SimConfig, make_params
+from jaxplore.config import make_params
 from jaxplore.planners import base, get_planner
 
 
@@ -55,7 +55,7 @@ def random_belief(rng, h, w):
 def test_goal_is_the_nearest_frontier_by_scipy_dijkstra(transform):
   rng = np.random.default_rng(0)
   plan = get_planner("nearest_frontier").plan
-  config = SimConfig(height=24, width=30, res=0.1, max_inflation_cells=0, path_capacity=128)
+  config = base.PlannerContext(height=24, width=30, res=0.1, max_inflation_cells=0, path_capacity=128)
   params = make_params(r_robot=0.0)
   plan_fn = transform(lambda v, r: plan(config, v, r, params, jax.random.PRNGKey(0)))
   for trial in range(4):
@@ -83,7 +83,7 @@ def test_goal_is_the_nearest_frontier_by_scipy_dijkstra(transform):
 
 
 def test_frontier_next_to_a_wall_is_reached_from_the_nearest_standing_cell():
-  config = SimConfig(height=12, width=20, res=0.1, max_inflation_cells=2, path_capacity=64)
+  config = base.PlannerContext(height=12, width=20, res=0.1, max_inflation_cells=2, path_capacity=64)
   params = make_params(r_robot=0.2)
   state = np.full((12, 20), 0)
   state[0, :] = state[-1, :] = state[:, 0] = state[:, -1] = 1
@@ -99,7 +99,7 @@ def test_frontier_next_to_a_wall_is_reached_from_the_nearest_standing_cell():
 
 
 def test_no_frontier_means_no_plan():
-  config = SimConfig(height=10, width=10, res=0.1, max_inflation_cells=0, path_capacity=32)
+  config = base.PlannerContext(height=10, width=10, res=0.1, max_inflation_cells=0, path_capacity=32)
   params = make_params(r_robot=0.0)
   state = np.zeros((10, 10), int)
   state[0, :] = state[-1, :] = state[:, 0] = state[:, -1] = 1

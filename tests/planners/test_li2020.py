@@ -12,13 +12,13 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from jaxplore import mapping
-from jaxplore.config import SimConfig, make_params
+from jaxplore.config import make_params
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.planners import base, li2020
 
 H, W = 26, 34
-CONFIG = SimConfig(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
-                   gain_radius_cells=3.0)
+CONFIG = base.PlannerContext(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
+                             r_e_cells=3.0)
 
 
 def weights(**kw):
@@ -49,7 +49,7 @@ def make_view(l, entropy, params):
 
 
 def params_for(**planner):
-  return make_params(r_robot=0.2, r_e=0.3, planner=dict(li2020.DEFAULTS, **planner))
+  return make_params(r_robot=0.2, planner=dict(li2020.DEFAULTS, **planner))
 
 
 def robot_at(cell, theta=0.3, cov=1e-4):
@@ -137,7 +137,7 @@ def test_tree_covariance_matches_numpy_loop_of_eq17():
   cost = li2020.edge_weights(view, b_e, b_g, jnp.float32(0.2), jnp.float32(0.6))
   robot = robot_at((5, 15), theta=0.7, cov=2e-3)
   sp = shortest_paths(cost, robot.cell)
-  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.gain_radius_cells)
+  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
   sums, cov, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
   rng = np.random.default_rng(0)
   reachable = np.argwhere(np.isfinite(np.asarray(sp.dist)))
@@ -178,11 +178,11 @@ def test_tree_gain_equals_exact_union_on_open_ground():
   cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
   robot = robot_at((12, 15))
   sp = shortest_paths(cost, robot.cell)
-  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.gain_radius_cells)
+  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
   sums, _, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
   for goal in [(12, 25), (4, 15), (20, 5), (5, 28)]:
     cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
-    exact = float(li2020.path_gain(gains[0], cells, n, CONFIG.gain_radius_cells))
+    exact = float(li2020.path_gain(gains[0], cells, n, CONFIG.r_e_cells))
     assert float(sums[goal[0] * W + goal[1], 0]) == pytest.approx(exact, rel=1e-4)
 
 

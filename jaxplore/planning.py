@@ -1,0 +1,273 @@
+"""The planning scheduler: which robots plan before a step, on what part of the grid, and how
+their answers are written back into the batch.
+
+A robot plans when it needs to (:func:`needs_plan`): when its last step was idle (its path is
+done or blocked and it already faces its look-at cell, or it never planned), or when
+``replan_every`` steps have passed since its last plan, unless its planner commits to its goal.
+Planning is by far the most expensive part of a step, and ``lax.cond`` under ``vmap`` would run
+it for every robot, so :func:`plan_where_needed` gathers the robots that need a plan, plans them
+a few at a time and scatters the answers back; the others cost nothing.
+
+The planner sees a :class:`~jaxplore.planners.base.BeliefView` of one robot's belief (never the
+truth) and a :class:`~jaxplore.planners.base.PlannerContext`; a planner with memory gets and
+returns its ``State.memory``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import chex
+import jax
+import jax.numpy as jnp
+
+from jaxplore import mapping
+from jaxplore.config import Params, SimConfig, window_margin
+from jaxplore.planners import base as planners_base
+from jaxplore.planners import window as planning_window
+from jaxplore.robot import EXHAUSTED, State, planner_context, robot_view
+from jaxplore.world import World, cell_of
+
+
+def belief_view(config: SimConfig, params: Params, state: State, robot_cell
+                ) -> planners_base.BeliefView:
+  """The planner's view of one robot's belief (masks computed once per planning round).
+
+  Traversable cells are free cells clear of believed walls by the robot radius, plus the free
+  cells of the inflated zone connected to the robot within ``max_inflation_cells + 1`` steps: a
+  robot that newly mapped walls left inside the inflated zone can still drive out of it.
+  """
+  free, occupied, unknown = mapping.classify(state.logodds, params)
+  inflated = mapping.inflate(occupied, params.r_robot / config.res, config.max_inflation_cells)
+  escape_zone = free & inflated
+  escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(True, mode="drop") & escape_zone
+  # A loop, not unrolled: XLA would fuse each step into the next one's 8 neighbour reads.
+  escape = jax.lax.fori_loop(0, config.max_inflation_cells + 1,
+                             lambda _, e: e | (mapping.any_neighbour(e) & escape_zone), escape)
+  return planners_base.BeliefView(
+      logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
+      unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,
+      frontier=mapping.frontier(free, unknown, occupied),
+      blacklist=state.blacklist,
+      pose_graph=state.graph if planners_base.get_planner(config.planner).needs_pose_graph else None)
+
+
+def _window_origin(config: SimConfig, cell, side: int):
+  """Top-left cell of the ``side``-wide window centred on ``cell``, shifted to lie in the grid."""
+  return jnp.stack([jnp.clip(cell[0] - side // 2, 0, config.height - side),
+                    jnp.clip(cell[1] - side // 2, 0, config.width - side)]).astype(jnp.int32)
+
+
+_MAP_FIELDS = ("logodds", "entropy_map", "blacklist")
+
+
+def _small_fields() -> tuple[str, ...]:
+  """The state's fields a planning round reads whole and writes back (all but the maps)."""
+  return tuple(f.name for f in dataclasses.fields(State) if f.name not in _MAP_FIELDS)
+
+
+def crop_maps(state: State, origin, shape) -> State:
+  """``state`` with its maps cut to the ``shape`` region at ``origin`` (what a window plans on)."""
+  crop = lambda grid: None if grid is None else jax.lax.dynamic_slice(
+      grid, (origin[0], origin[1]), shape)
+  return state.replace(**{name: crop(getattr(state, name)) for name in _MAP_FIELDS})
+
+
+def _propose(config: SimConfig, params: Params, state: State, robot, origin, key):
+  """The planner's plan on the region of the grid that ``state``'s maps hold, at ``origin``.
+
+  Returns (plan in grid coordinates, new memory, certified). The region is the whole grid (a
+  plan there is always certified) or a window around the robot
+  (:mod:`jaxplore.planners.window`).
+  """
+  spec = planners_base.get_planner(config.planner)
+  shape = state.logodds.shape
+  ctx = planner_context(config, shape)
+  cell = robot.cell - origin
+  view = belief_view(config, params, state, cell)
+  whole_grid = shape == (config.height, config.width)
+  if not whole_grid:
+    view, edge = planning_window.restrict(view, cell, origin, (config.height, config.width),
+                                          window_margin(config.max_inflation_cells))
+  result, memory = spec.propose(ctx, view, robot.replace(cell=cell), params, key, state.memory)
+  certified = jnp.bool_(True) if whole_grid else planning_window.certified(result, edge, config.res)
+  return planning_window.to_grid(result, origin), memory, certified
+
+
+@chex.dataclass(frozen=True)
+class PlanOutcome:
+  """What one planning round changes in one robot's state.
+
+  Attributes:
+    state: the robot's state with its new plan; its map leaves are not meaningful (a round
+      reads the maps of a region of the grid and writes nothing but ``marks`` to them).
+    marks: i32[2, 2] goal cells to blacklist (the goal the robot arrived at, a stuck goal).
+    mark: bool[2] which of ``marks`` apply.
+    certified: bool; False when a window could not certify its plan: then nothing changes.
+  """
+
+  state: State
+  marks: chex.Array
+  mark: chex.Array
+  certified: chex.Array
+
+
+def _plan_round(config: SimConfig, world: World, params: Params, state: State, origin
+                ) -> PlanOutcome:
+  """One robot's planning round on the region of the grid that ``state``'s maps hold.
+
+  ``state`` is one robot's state whose map leaves are the whole grid (``origin`` = (0, 0)) or,
+  for a ``windowed`` planner, a window at ``origin`` (:func:`crop_maps`). A robot whose planner
+  finds no candidate ends ``exhausted`` (unless already complete). A goal chosen twice in a row
+  while the robot already stands on it cannot be resolved from here and is blacklisted, so no
+  robot waits on it forever.
+  """
+  spec = planners_base.get_planner(config.planner)
+  key, k_plan = jax.random.split(state.key)
+  running = ~state.done
+  arrival_goal = state.goal
+  arrived = jnp.bool_(False)
+  if spec.blacklist_on_arrival:
+    arrived = running & (state.path_len > 0) & (state.path_idx >= state.path_len)
+    local_goal = state.goal - origin
+    state = state.replace(blacklist=state.blacklist.at[local_goal[0], local_goal[1]].max(
+        arrived, mode="drop", wrap_negative_indices=False))
+  robot = robot_view(config, world, state)
+  result, memory, certified = _propose(config, params, state, robot, origin, k_plan)
+  stuck = running & result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
+  exhausted = running & ~result.valid
+  install = running & result.valid
+  state = state.replace(
+      key=key, since_plan=jnp.int32(0),
+      waypoints=jnp.where(install, result.waypoints, state.waypoints),
+      path_len=jnp.where(install, result.length, 0),
+      path_idx=jnp.where(install, jnp.minimum(1, result.length), 0),
+      goal=jnp.where(install, result.goal, state.goal),
+      look_at=jnp.where(install, result.look_at, robot.cell),
+      last_goal=jnp.where(install, result.goal, state.last_goal),
+      done=state.done | exhausted,
+      reason=jnp.where(exhausted, EXHAUSTED, state.reason),
+      memory=jax.tree.map(lambda new, old: jnp.where(running, new, old), memory, state.memory))
+  return PlanOutcome(state=state, marks=jnp.stack([arrival_goal, result.goal]),
+                     mark=jnp.stack([arrived, stuck]), certified=certified)
+
+
+def _apply_plans(state: State, robots, outcome: PlanOutcome) -> State:
+  """Writes the outcomes of robots ``robots`` (i32[C], a batch of outcomes) into the batched
+  ``state``: the small leaves of certified outcomes, and their blacklist marks."""
+  ok = outcome.certified
+
+  def write(old, new):
+    keep = ok.reshape(ok.shape + (1,) * (new.ndim - 1))
+    return old.at[robots].set(jnp.where(keep, new, old[robots]))
+
+  small = {name: jax.tree.map(write, getattr(state, name), getattr(outcome.state, name))
+           for name in _small_fields()}
+  mark = outcome.mark & ok[:, None]
+  rows, cols = outcome.marks[..., 0], outcome.marks[..., 1]
+  blacklist = state.blacklist.at[robots[:, None], rows, cols].max(
+      mark, mode="drop", wrap_negative_indices=False)
+  return state.replace(blacklist=blacklist, **small)
+
+
+def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
+  """One robot's planning round on the whole grid: ask the planner, install the path, handle
+  no-op goals (see :func:`_plan_round`)."""
+  outcome = _plan_round(config, world, params, state, jnp.zeros((2,), jnp.int32))
+  batch = lambda tree: jax.tree.map(lambda x: x[None], tree)
+  new = _apply_plans(batch(state), jnp.zeros((1,), jnp.int32), batch(outcome))
+  return jax.tree.map(lambda x: x[0], new)
+
+
+def needs_plan(config: SimConfig, state: State):
+  """Whether a robot plans before its next step: it is running, and its last step was idle or
+  ``replan_every`` steps have passed since its last plan (never, for a planner that commits to
+  its goal: it plans again when its path is done or blocked)."""
+  if planners_base.get_planner(config.planner).commits:
+    return ~state.done & ~state.busy
+  return ~state.done & (~state.busy | (state.since_plan >= config.replan_every))
+
+
+def uses_window(config: SimConfig) -> bool:
+  """Whether planning tries a window first (a ``windowed`` planner, a window smaller than the
+  grid)."""
+  return (planners_base.get_planner(config.planner).windowed and
+          0 < config.plan_window < min(config.height, config.width))
+
+
+def _plan_robots(config: SimConfig, world: World, params: Params, state: State, need, window: int,
+                 chunk: int):
+  """:func:`plan` for the robots with ``need`` set, ``chunk`` at a time, on the window of
+  ``window`` cells around each (0 = the whole grid). Returns the new state and which robots got
+  their plan (all of them on the whole grid; with a window, those whose plan was certified: the
+  others keep their state).
+
+  Each robot's maps are read straight from the batch, cropped to its window; a round writes
+  back only its small leaves and blacklist marks (:func:`_apply_plans`), never whole maps.
+  """
+  batch = need.shape[0]
+  chunk = min(chunk, batch)
+  n_need = jnp.sum(need.astype(jnp.int32))
+  order = jnp.nonzero(need, size=batch + chunk, fill_value=-1)[0]
+  # A last partial chunk is filled with copies of its own last robot: they plan from the same
+  # state and write the same result. (A robot of an earlier chunk would plan a second time,
+  # from its new state, and its key would advance twice: the noise it draws next, and so its
+  # run, would depend on the batch around it.)
+  order = jnp.where(order < 0, order[jnp.maximum(n_need - 1, 0)], order)
+  n_chunks = (n_need + chunk - 1) // chunk
+  shape = (window, window) if window else (config.height, config.width)
+
+  def plan_chunk(k, carry):
+    state, planned = carry
+    robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
+
+    def plan_one(p, robot):
+      one = {name: jax.tree.map(lambda x: x[robot], getattr(state, name))
+             for name in _small_fields()}
+      cell = cell_of(one["pose_est"][:2], world.origin, config.res)
+      origin = _window_origin(config, cell, window) if window else jnp.zeros((2,), jnp.int32)
+      corner = (robot, origin[0], origin[1])
+      crop = lambda grid: None if grid is None else jax.lax.dynamic_slice(
+          grid, corner, (1,) + shape)[0]
+      maps = {name: crop(getattr(state, name)) for name in _MAP_FIELDS}
+      return _plan_round(config, world, p, State(**one, **maps), origin)
+
+    outcome = jax.vmap(plan_one)(jax.tree.map(lambda x: x[robots], params), robots)
+    return _apply_plans(state, robots, outcome), planned.at[robots].set(outcome.certified)
+
+  return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))
+
+
+def plan_where_needed(config: SimConfig, world: World, params: Params, state: State) -> State:
+  """:func:`plan` for the robots of a batch that need it (:func:`needs_plan`).
+
+  ``params`` and ``state`` carry a leading batch axis. The robots that plan are gathered in
+  chunks of ``config.plan_chunk``, planned with ``vmap`` (a chunk of 4 plans about twice as fast
+  per robot as one robot alone: the shortest-path sweeps vectorise across the chunk) and
+  scattered back in place; robots that do not plan cost nothing, where a batched ``lax.cond``
+  would run the planner for all of them. A last partial chunk is filled with repeats of its own
+  last robot (its copies compute and write the same result); on the whole grid, the robots
+  left over after full chunks plan one at a time instead.
+
+  With a planning window (:func:`uses_window`), every robot first plans on the window around
+  it, and only those whose answer the window cannot certify plan again on the whole grid: the
+  work follows the distance to the nearest candidate instead of the grid's size.
+  """
+  need = needs_plan(config, state)
+  if uses_window(config):
+    state, certified = _plan_robots(config, world, params, state, need, config.plan_window,
+                                    config.plan_chunk)
+    need = need & ~certified
+  # Whole-grid plans are few and dear: the robots left over after full chunks plan one by one
+  # rather than in a chunk padded with copies (Explore-Bench room_with_corner, 128 robots,
+  # steps 32-64: 0.98x the time; steps 300-332, more robots beyond their window: 0.94x).
+  chunk = min(config.plan_chunk, need.shape[0])
+  if chunk == 1:
+    return _plan_robots(config, world, params, state, need, 0, 1)[0]
+  rank = jnp.cumsum(need.astype(jnp.int32)) - 1
+  in_full_chunks = rank < (rank[-1] + 1) // chunk * chunk
+  state, _ = _plan_robots(config, world, params, state, need & in_full_chunks, 0, chunk)
+  state, _ = _plan_robots(config, world, params, state, need & ~in_full_chunks, 0, 1)
+  return state
+
+

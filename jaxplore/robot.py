@@ -1,0 +1,299 @@
+"""One robot: its state, its reset and its motion step (single-robot pure functions).
+
+The engine batches these with ``vmap`` at the edge. One motion step (:func:`step`): drive toward
+the next waypoint (or turn to the look-at cell) -> dead-reckon the estimate and propagate Σ
+(Li et al. 2020, Eq 16-17) -> scan the truth from the true pose -> relocalise if the scan ends on
+enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> update
+Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SLAM pose graph
+(keyframes and loop closures, :mod:`jaxplore.posegraph`; only when the run keeps one) -> the
+planner's step hook (only when it has one) -> metrics -> termination.
+
+Time spent waiting is not mission time (``time`` counts only steps in which the robot moved or
+turned; ``idle_steps`` counts the others: one per arrival, plus any wait of a robot with nothing
+to do).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import chex
+import jax
+import jax.numpy as jnp
+
+from jaxplore import mapping, motion, posegraph, sensor
+from jaxplore.config import Params, SimConfig
+from jaxplore.planners import base as planners_base
+from jaxplore.world import World, cell_centre, cell_of, sample_start, to_cells
+
+RUNNING, COMPLETE, EXHAUSTED, TIMEOUT = 0, 1, 2, 3
+REASONS = {RUNNING: "running", COMPLETE: "complete", EXHAUSTED: "exhausted", TIMEOUT: "timeout"}
+
+
+@chex.dataclass(frozen=True)
+class State:
+  """One robot's whole simulation state (leaves gain a leading batch axis under vmap).
+
+  Attributes:
+    key: PRNG key.
+    pose: f32[3] true pose (x m, y m, θ rad). pose_est: f32[3] the robot's estimate.
+    cov: f32[3, 3] pose covariance Σ of the estimate.
+    logodds: f32[H, W] occupancy belief.
+    entropy_map: f32[H, W] Li's I_e (Eq 1-3), or None when the planner does not read it.
+    blacklist: bool[H, W] goals found unresolvable (never chosen again).
+    waypoints: i32[L, 2] current path; path_len: i32; path_idx: i32 next waypoint.
+    goal, look_at, last_goal: i32[2] cells of the current and previous plan.
+    steps: i32 motion steps taken (including idle ones); idle_steps: i32.
+    since_plan: i32 steps since the last plan; busy: bool the last step moved or turned.
+    time: f32 mission time (s); distance: f32 (m).
+    entropy: f32 map entropy Σ Ĥ(c) over the grid (nats). covered: f32 reachable cells known free.
+    done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
+    memory: the planner's per-robot memory (a pytree; ``()`` for a planner without one).
+    graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`), or None when
+      ``SimConfig.graph_nodes`` is 0.
+  """
+
+  key: chex.Array
+  pose: chex.Array
+  pose_est: chex.Array
+  cov: chex.Array
+  logodds: chex.Array
+  entropy_map: chex.Array
+  blacklist: chex.Array
+  waypoints: chex.Array
+  path_len: chex.Array
+  path_idx: chex.Array
+  goal: chex.Array
+  look_at: chex.Array
+  last_goal: chex.Array
+  steps: chex.Array
+  idle_steps: chex.Array
+  since_plan: chex.Array
+  busy: chex.Array
+  time: chex.Array
+  distance: chex.Array
+  entropy: chex.Array
+  covered: chex.Array
+  done: chex.Array
+  reason: chex.Array
+  memory: Any = ()
+  graph: Any = None
+
+
+@chex.dataclass(frozen=True)
+class Record:
+  """Per-step measurements of one robot."""
+
+  entropy: chex.Array  # nats
+  distance: chex.Array  # m
+  time: chex.Array  # s
+  coverage: chex.Array  # fraction of reachable free cells known free
+  det_cov: chex.Array  # det Σ
+  pose_error: chex.Array  # m, |true xy − estimated xy|
+  x: chex.Array  # true position, m
+  y: chex.Array
+  done: chex.Array  # bool
+  # With a pose graph (else None): keyframes, edges and the mean edge D-optimality (NaN: no edge).
+  graph_nodes: Any = None
+  graph_edges: Any = None
+  dopt_mean: Any = None
+
+
+def keeps_entropy_map(config: SimConfig) -> bool:
+  """Whether the state holds Li's entropy map: the planner reads it, or the config asks for it."""
+  return config.entropy_map or planners_base.get_planner(config.planner).needs_entropy_map
+
+
+def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
+                    ) -> planners_base.PlannerContext:
+  """What the planner is told of the run (:class:`~jaxplore.planners.base.PlannerContext`), for
+  the whole grid or for a window of ``shape`` cells."""
+  height, width = shape if shape is not None else (config.height, config.width)
+  return planners_base.PlannerContext(
+      height=height, width=width, res=config.res, path_capacity=config.path_capacity,
+      dijkstra_max_sweeps=config.dijkstra_max_sweeps,
+      max_inflation_cells=config.max_inflation_cells, max_steps=config.max_steps,
+      r_e_cells=config.r_e / config.res if keeps_entropy_map(config) else 0.0,
+      settings=config.planner_settings)
+
+
+def robot_view(config: SimConfig, world: World, state: State) -> planners_base.RobotView:
+  """The robot as it believes itself to be: estimated pose, its cell, Σ."""
+  return planners_base.RobotView(pose=state.pose_est,
+                                 cell=cell_of(state.pose_est[:2], world.origin, config.res),
+                                 cov=state.cov)
+
+
+def _sense(config: SimConfig, world: World, params: Params, state: State, key, active):
+  """Scan, relocalise, integrate into the belief, update the entropy map and the running metrics.
+
+  ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched; such a
+  robot casts no beam. Under ``vmap`` the robots are processed one after the other with their
+  maps updated in place (:func:`mapping.per_robot` says why that beats a ``vmap`` here).
+  """
+  res = config.res
+  shape = (config.height, config.width)
+  n_cross = config.max_range_cells + 1
+
+  def one(robot, grids, inputs):
+    logodds, entropy_map = grids
+    params, pose, pose_est, cov, key, active, angles, dirs, est_dirs = inputs
+    true_uv = to_cells(pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
+    noise_key, _ = jax.random.split(key)
+    scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles, params.r_max / res,
+                          n_cross, key=noise_key, noise_cells=params.range_noise / res, active=active,
+                          dirs=dirs)
+    if config.pose_noise:
+      # The scan is integrated where the robot believes it is; beams keep their robot-frame angle.
+      est_uv = to_cells(pose_est[:2], world.origin, res)[::-1]
+      scan = scan._replace(angles=angles - pose[2] + pose_est[2])
+      exact = jnp.bool_(False)
+    else:
+      est_uv = true_uv
+      exact = params.range_noise <= 0
+    end_rows, end_cols = sensor.end_cells(scan, est_uv[0], est_uv[1], exact, est_dirs)
+    observed = sensor.mark_observed(sensor.empty_observation(shape), shape, scan, est_uv[0], est_uv[1],
+                                    end_rows, end_cols, n_cross, active, est_dirs)
+
+    # Relocalisation: enough beams end on occupied cells the belief already knows well.
+    old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0)
+    well_mapped = (old_end > mapping.logit(params.p_occ)) & (
+        mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
+    hits = jnp.sum(well_mapped & scan.hit)
+    meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy, params.reloc_var_theta]))
+    new_est, new_cov = motion.relocalise(pose_est, cov, pose, meas_cov)
+    reloc = active & (hits >= params.reloc_min_hits)
+    pose_est = jnp.where(reloc, new_est, pose_est)
+    cov = jnp.where(reloc, new_cov, cov)
+
+    logodds, d_entropy, d_covered = mapping.integrate_observation(
+        logodds, robot, sensor.observation_tiles(observed, shape), world.reachable, params,
+        after=jnp.sum(old_end))
+    if entropy_map is not None:
+      ru_cells = jnp.where(active, params.alpha * config.r_e / res, 0.0)
+      entropy_map = mapping.update_entropy_map(
+          entropy_map, logodds, to_cells(pose_est[:2], world.origin, res), ru_cells,
+          params.entropy_k, 2 * config.max_update_radius_cells + 3, robot=robot)
+    return (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered)
+
+  # Beam directions are computed here, for the whole batch at once, rather than inside the
+  # per-robot loop (see sensor.measure).
+  angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
+  est_angles = angles - state.pose[2] + state.pose_est[2] if config.pose_noise else angles
+  inputs = (params, state.pose, state.pose_est, state.cov, key, active, angles,
+            sensor.directions(angles), sensor.directions(est_angles))
+  (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered) = mapping.per_robot(one)(
+      (state.logodds, state.entropy_map), inputs)
+  return state.replace(pose_est=pose_est, cov=cov, logodds=logodds, entropy_map=entropy_map,
+                       entropy=state.entropy + d_entropy, covered=state.covered + d_covered)
+
+
+def reset(config: SimConfig, world: World, params: Params, key, start_pose=None) -> State:
+  """A robot at its start with an empty belief, after its first scan.
+
+  Args:
+    start_pose: f32[3] (x, y, θ) or None to sample a start cell and heading from ``key``.
+  """
+  h, w, L = config.height, config.width, config.path_capacity
+  key, k_start, k_scan = jax.random.split(key, 3)
+  if start_pose is None:
+    cell, theta = sample_start(world, k_start)
+    xy = cell_centre(cell, world.origin, config.res)
+    pose = jnp.concatenate([xy, theta[None]]).astype(jnp.float32)
+  else:
+    pose = jnp.asarray(start_pose, jnp.float32)
+  cell = cell_of(pose[:2], world.origin, config.res)
+  zeros_i2 = jnp.zeros((2,), jnp.int32) - 1
+  state = State(
+      key=key, pose=pose, pose_est=pose, cov=jnp.eye(3, dtype=jnp.float32) * params.sigma0,
+      logodds=jnp.zeros((h, w), jnp.float32),
+      entropy_map=jnp.full((h, w), mapping.LN2, jnp.float32) if keeps_entropy_map(config) else None,
+      blacklist=jnp.zeros((h, w), bool),
+      waypoints=jnp.broadcast_to(cell, (L, 2)).astype(jnp.int32), path_len=jnp.int32(0),
+      path_idx=jnp.int32(0), goal=zeros_i2, look_at=cell, last_goal=zeros_i2,
+      steps=jnp.int32(0), idle_steps=jnp.int32(0), since_plan=jnp.int32(0), busy=jnp.bool_(False),
+      time=jnp.float32(0), distance=jnp.float32(0),
+      entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
+      done=jnp.bool_(False), reason=jnp.int32(RUNNING),
+      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config), params),
+      graph=posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes else None)
+  state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
+  return _check_complete(world, params, state)
+
+
+def _check_complete(world: World, params: Params, state: State) -> State:
+  complete = ~state.done & (state.covered >= params.coverage_goal * world.n_reachable - 1e-3)
+  return state.replace(done=state.done | complete,
+                       reason=jnp.where(complete, COMPLETE, state.reason))
+
+
+def record(world: World, state: State) -> Record:
+  graph = {}
+  if state.graph is not None:
+    g = state.graph
+    edges = g.n_nodes - 1 + g.n_loops
+    total = jnp.sum(g.chain_w) + jnp.sum(g.loop_w)
+    graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
+                 dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
+  return Record(entropy=state.entropy, distance=state.distance, time=state.time,
+                coverage=state.covered / world.n_reachable, det_cov=jnp.linalg.det(state.cov),
+                pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
+                x=state.pose[0], y=state.pose[1], done=state.done, **graph)
+
+
+def step(config: SimConfig, world: World, params: Params, state: State) -> tuple[State, Record]:
+  """One motion step of one robot (see the module docstring for the order of events)."""
+  res = config.res
+  key, k_noise, k_sense = jax.random.split(state.key, 3)
+  running = ~state.done
+  has_waypoint = state.path_idx < state.path_len
+  idx = jnp.minimum(state.path_idx, config.path_capacity - 1)
+  target = jnp.where(has_waypoint, state.waypoints[idx], state.look_at)
+  # Collisions are impossible by construction: a waypoint the truth says is occupied ends the path.
+  blocked = has_waypoint & world.occupied[target[0], target[1]]
+  path_len = jnp.where(blocked, state.path_idx, state.path_len)
+  has_waypoint = has_waypoint & ~blocked
+  target = jnp.where(has_waypoint, target, state.look_at)
+  target_xy = cell_centre(target, world.origin, res)
+  look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
+  drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
+                              translate=has_waypoint)
+  busy = running & (has_waypoint | (look_needed & (jnp.abs(drive.delta_phi) > 1e-6)))
+  delta_d = jnp.where(busy, drive.delta_d, 0.0)
+  delta_phi = jnp.where(busy, drive.delta_phi, 0.0)
+  pose = jnp.where(busy, drive.pose, state.pose)
+  path_idx = state.path_idx + (busy & has_waypoint & drive.arrived).astype(jnp.int32)
+
+  # Odometry: the estimate is dead-reckoned from the (possibly noisy) increment; Σ by Eq 17.
+  odo = motion.increment(delta_d, delta_phi)
+  v_n = motion.odometry_covariance(delta_d, delta_phi, params.sigma_d, params.sigma_phi)
+  if config.pose_noise:
+    odo = odo + jnp.sqrt(jnp.diag(v_n)) * jax.random.normal(k_noise, (3,))
+  pose_est = motion.compound(state.pose_est, odo)
+  cov = motion.propagate_covariance(state.cov, state.pose_est, pose_est, v_n)
+  if not config.pose_noise:
+    pose_est = pose
+
+  state = state.replace(key=key, pose=pose, pose_est=pose_est, cov=cov, path_len=path_len,
+                        path_idx=path_idx, steps=state.steps + running.astype(jnp.int32),
+                        idle_steps=state.idle_steps + (running & ~busy).astype(jnp.int32),
+                        since_plan=state.since_plan + 1, busy=busy,
+                        time=state.time + jnp.where(busy, params.dt, 0.0),
+                        distance=state.distance + delta_d)
+  state = _sense(config, world, params, state, k_sense, busy)
+  if config.graph_nodes:
+    # Keyframes at the estimate after relocalisation; line of sight in the updated belief. The
+    # samples are half a cell apart for loops up to the sensor's range (validate_params).
+    state = state.replace(graph=posegraph.observe(
+        state.graph, state.pose_est, v_n, motion.increment(delta_d, delta_phi), busy, state.logodds,
+        world.origin, res, params, 2 * config.max_range_cells + 2))
+  spec = planners_base.get_planner(config.planner)
+  if spec.step_hook is not None:
+    memory = spec.step_hook(planner_context(config), params, state.memory,
+                            robot_view(config, world, state), state.logodds, busy)
+    state = state.replace(memory=jax.tree.map(lambda new, old: jnp.where(running, new, old),
+                                              memory, state.memory))
+  state = _check_complete(world, params, state)
+  timeout = ~state.done & (state.steps >= config.max_steps)
+  state = state.replace(done=state.done | timeout, reason=jnp.where(timeout, TIMEOUT, state.reason))
+  return state, record(world, state)

@@ -1,0 +1,115 @@
+"""The world a batch of robots explores: the ground truth and where robots may start (host side).
+
+:func:`make_world` turns a :class:`~jaxplore.maps.grid.GridMap` into the device-side
+:class:`World` shared by every robot of a batch (passed with ``in_axes=None``, never copied per
+robot), after checking a given start; the coordinate helpers convert between metres and cells.
+Cells are (row, col); row 0 holds the lowest y.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+from jaxplore import sensor
+from jaxplore.config import ConfigError
+from jaxplore.maps.grid import GridMap
+
+
+@chex.dataclass(frozen=True)
+class World:
+  """The ground truth shared by every robot of a batch (pass with ``in_axes=None``).
+
+  Attributes:
+    occupied: bool[H, W] truth (outside the grid counts as occupied).
+    truth_framed: bool[(H + 2) * (W + 2)] the truth with an occupied border, flat (for the lidar).
+    reachable: bool[H, W] free cells 4-connected to the start area; coverage is measured on it.
+    start_ok: bool[H, W] where random starts are drawn: the largest 8-connected component of the
+      reachable cells with clearance > r_robot.
+    n_reachable: f32 number of reachable cells.
+    origin: f32[2] metres of the lower-left corner of cell (0, 0).
+  """
+
+  occupied: chex.Array
+  truth_framed: chex.Array
+  reachable: chex.Array
+  start_ok: chex.Array
+  n_reachable: chex.Array
+  origin: chex.Array
+
+
+def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
+  """Builds the device-side :class:`World` of a map (host side; validates the start).
+
+  Args:
+    grid: the truth map.
+    r_robot: the robot radius in metres (largest in the batch), for start clearance.
+    start_xy: optional (x, y) start in metres; the reachable area is its 4-connected free
+      component. Without it, the largest free component is used and starts are sampled in it.
+  Raises:
+    ConfigError: a start outside the map, inside a wall, or too close to one.
+  """
+  free = grid.free
+  labels, count = ndimage.label(free)
+  if count == 0:
+    raise ConfigError(f"map {grid.name!r} has no free cell")
+  clearance = ndimage.distance_transform_edt(free)  # cells, centre to nearest occupied centre
+  radius = r_robot / grid.res
+  if start_xy is not None:
+    i, j = grid.world_to_cell(start_xy[0], start_xy[1])
+    h, w = grid.shape
+    if not (0 <= i < h and 0 <= j < w):
+      raise ConfigError(f"start {tuple(start_xy)} m is outside the map {grid.name!r} "
+                        f"(x in [{grid.origin[0]}, {grid.origin[0] + w * grid.res}], "
+                        f"y in [{grid.origin[1]}, {grid.origin[1] + h * grid.res}])")
+    if grid.occupied[i, j]:
+      raise ConfigError(f"start {tuple(start_xy)} m is inside a wall of map {grid.name!r} (cell {i}, {j})")
+    if clearance[i, j] <= radius:
+      raise ConfigError(f"start {tuple(start_xy)} m is {clearance[i, j] * grid.res:.2f} m from a wall, "
+                        f"closer than the robot radius {r_robot} m")
+    reachable = labels == labels[i, j]
+  else:
+    sizes = ndimage.sum_labels(free, labels, index=np.arange(1, count + 1))
+    reachable = labels == (1 + int(np.argmax(sizes)))
+  start_ok = reachable & (clearance > radius)
+  if start_xy is None and start_ok.any():
+    # Random starts only where the robot can reach most of the map: the largest 8-connected
+    # component of the cells it fits in (a closet behind a door narrower than the robot is free
+    # and reachable for coverage, but a robot started there could never leave it).
+    fits, n_fits = ndimage.label(start_ok, structure=np.ones((3, 3), bool))
+    fit_sizes = ndimage.sum_labels(start_ok, fits, index=np.arange(1, n_fits + 1))
+    start_ok = fits == (1 + int(np.argmax(fit_sizes)))
+  if not start_ok.any():
+    raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius {r_robot} m")
+  return World(occupied=jnp.asarray(grid.occupied),
+               truth_framed=sensor.frame_truth(jnp.asarray(grid.occupied)), reachable=jnp.asarray(reachable),
+               start_ok=jnp.asarray(start_ok), n_reachable=jnp.float32(reachable.sum()),
+               origin=jnp.asarray(grid.origin, jnp.float32))
+
+
+def to_cells(xy, origin, res):
+  """Metres -> continuous cell coordinates (row, col)."""
+  return jnp.stack([(xy[1] - origin[1]) / res, (xy[0] - origin[0]) / res])
+
+
+def cell_of(xy, origin, res):
+  return jnp.floor(to_cells(xy, origin, res)).astype(jnp.int32)
+
+
+def cell_centre(cell, origin, res):
+  """Integer (row, col) -> metres (x, y) of the centre."""
+  return jnp.stack([origin[0] + (cell[1] + 0.5) * res, origin[1] + (cell[0] + 0.5) * res])
+
+
+def sample_start(world: World, key):
+  """A pose drawn uniformly over ``world.start_ok`` cells (centre) with a uniform heading."""
+  k_cell, k_theta = jax.random.split(key)
+  h, w = world.occupied.shape
+  logits = jnp.where(world.start_ok.ravel(), 0.0, -jnp.inf)
+  flat = jax.random.categorical(k_cell, logits)
+  cell = jnp.stack([flat // w, flat % w])
+  theta = jax.random.uniform(k_theta, (), minval=-jnp.pi, maxval=jnp.pi)
+  return cell, theta

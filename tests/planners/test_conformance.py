@@ -1,0 +1,155 @@
+"""Every registered planner against the planner contract (after jumanji's
+``check_env_does_not_smoke`` and pgx's API tests): one robot and a vmapped batch, eager and
+jitted; shapes and dtypes of the plan and of the memory; finite outputs; no retrace when a traced
+number changes; a plan is a chain of 8-neighbours over believed-free cells only.
+
+A planner added to the registry is checked here without a line of its own.
+"""
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxplore import mapping, posegraph
+from jaxplore.config import make_params
+from jaxplore.planners import base, planner_names
+
+H, W, L = 24, 32, 64
+BATCH = 2
+
+
+def belief_logodds():
+  """Known rooms on the left (a wall with a door, a box), unknown space on the right."""
+  state = np.zeros((H, W), int)  # 0 free, 1 occupied, 2 unknown
+  state[0, :] = state[-1, :] = state[:, 0] = 1
+  state[:, 20:] = 2
+  state[12, 1:8] = state[12, 11:20] = 1
+  state[4:7, 13:16] = 1
+  state[5:9, 23:26] = 1  # a wall seen inside the unknown region
+  return np.where(state == 0, -3.0, np.where(state == 1, 3.0, 0.0)).astype(np.float32)
+
+
+def context(spec):
+  return base.PlannerContext(height=H, width=W, res=0.1, path_capacity=L, max_inflation_cells=2,
+                             max_steps=400, r_e_cells=3.0 if spec.needs_entropy_map else 0.0,
+                             settings=spec.settings)
+
+
+def view_and_robot(spec, params, cell, theta):
+  logodds = jnp.asarray(belief_logodds())
+  free, occupied, unknown = mapping.classify(logodds, params)
+  inflated = mapping.inflate(occupied, params.r_robot / 0.1, 2)
+  entropy = mapping.entropy_of_logodds(logodds) if spec.needs_entropy_map else None
+  robot = base.RobotView(pose=jnp.asarray([cell[1] * 0.1 + 0.05, cell[0] * 0.1 + 0.05, theta],
+                                          jnp.float32),
+                         cell=jnp.asarray(cell, jnp.int32), cov=jnp.eye(3, dtype=jnp.float32) * 1e-4)
+  # A pose graph of one keyframe at the robot, for planners that read one.
+  graph = posegraph.init(robot.pose, 16, 8) if spec.needs_pose_graph else None
+  view = base.BeliefView(logodds=logodds, entropy_map=entropy, free=free, occupied=occupied,
+                         unknown=unknown, inflated=inflated, traversable=free & ~inflated,
+                         frontier=mapping.frontier(free, unknown, occupied),
+                         blacklist=jnp.zeros((H, W), bool), pose_graph=graph)
+  return view, robot
+
+
+def params_of(spec, **overrides):
+  return make_params(res=0.1, r_robot=0.15, r_max=2.0, planner=dict(spec.defaults, **overrides))
+
+
+def one_plan(spec, ctx):
+  """(params, key, cell, theta) -> (Plan, memory) for one robot, from a fresh memory."""
+  def fn(params, key, cell, theta):
+    view, robot = view_and_robot(spec, params, cell, theta)
+    memory = spec.initial_memory(ctx, params)
+    return spec.propose(ctx, view, robot, params, key, memory)
+  return fn
+
+
+def inputs(batch=None):
+  cells = np.array([[6, 4], [18, 10]], np.int32)
+  thetas = np.array([0.3, -2.0], np.float32)
+  keys = jax.random.split(jax.random.PRNGKey(7), 2)
+  if batch is None:
+    return keys[0], jnp.asarray(cells[0]), jnp.float32(thetas[0])
+  return keys, jnp.asarray(cells), jnp.asarray(thetas)
+
+
+def check_plan(plan, memory, initial_memory, logodds):
+  """Shapes, dtypes, finiteness and a walkable path for one robot's answer (NumPy)."""
+  chex.assert_shape(plan.waypoints, (L, 2))
+  assert plan.waypoints.dtype == np.int32 and plan.goal.dtype == np.int32
+  assert plan.look_at.dtype == np.int32 and plan.length.dtype == np.int32
+  assert plan.valid.dtype == np.bool_ and plan.n_candidates.dtype == np.int32
+  for name in ("length", "goal", "look_at", "valid", "gain", "cost", "n_candidates"):
+    chex.assert_shape(getattr(plan, name), (2,) if name in ("goal", "look_at") else ())
+  assert np.isfinite(plan.gain)
+  assert 0 <= int(plan.length) <= L
+  chex.assert_trees_all_equal_shapes_and_dtypes(memory, initial_memory)
+  chex.assert_tree_all_finite(jax.tree.map(lambda x: np.asarray(x, np.float64), memory))
+  if not plan.valid:
+    return
+  assert np.isfinite(plan.cost)
+  cells = plan.waypoints[: int(plan.length)]
+  free = logodds < 0
+  assert free[cells[:, 0], cells[:, 1]].all(), "a plan through an occupied or unknown cell"
+  steps = np.abs(np.diff(cells, axis=0))
+  assert (steps.max(axis=1, initial=0) <= 1).all(), "waypoints are not 8-neighbours"
+
+
+@pytest.fixture(scope="module", params=planner_names())
+def planner(request):
+  """The planner's one-robot function, and its jitted form that fails on a second trace (shared
+  by the tests below: one compile per planner)."""
+  spec = base.get_planner(request.param)
+  ctx = context(spec)
+  fn = one_plan(spec, ctx)
+  params = params_of(spec)
+  chex.clear_trace_counter()
+  return spec, ctx, fn, params, jax.jit(chex.assert_max_traces(fn, n=1))
+
+
+def test_one_robot_eager_and_jitted_agree_and_conform(planner):
+  spec, ctx, fn, params, jitted_fn = planner
+  eager = jax.tree.map(np.asarray, fn(params, *inputs()))
+  jitted = jax.tree.map(np.asarray, jitted_fn(params, *inputs()))
+  initial = jax.tree.map(np.asarray, spec.initial_memory(ctx, params))
+  check_plan(*eager, initial, belief_logodds())
+  chex.assert_trees_all_close(eager, jitted, atol=1e-4, rtol=1e-4)
+
+
+def test_batch_vmapped_conforms_and_equals_one_at_a_time(planner):
+  spec, ctx, fn, params, jitted_fn = planner
+  batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (BATCH,) + jnp.shape(x)), params)
+  keys, cells, thetas = inputs(BATCH)
+  plans, memories = jax.tree.map(np.asarray, jax.jit(jax.vmap(fn))(batched, keys, cells, thetas))
+  initial = jax.tree.map(np.asarray, spec.initial_memory(ctx, params))
+  for b in range(BATCH):
+    plan_b, memory_b = jax.tree.map(lambda x: x[b], (plans, memories))
+    check_plan(plan_b, memory_b, initial, belief_logodds())
+    alone = jax.tree.map(np.asarray, jitted_fn(params, keys[b], cells[b], thetas[b]))
+    chex.assert_trees_all_close((plan_b, memory_b), alone, atol=1e-4, rtol=1e-4)
+
+
+def test_changing_a_traced_number_does_not_retrace(planner):
+  """The shared jitted function has traced once; new values of a weight must not trace it
+  again (``assert_max_traces`` raises)."""
+  spec, ctx, fn, params, counted = planner
+  counted(params, *inputs())
+  if spec.defaults:
+    name = sorted(spec.defaults)[0]
+    changed = params.replace(planner=dict(params.planner, **{name: params.planner[name] * 0.5}))
+  else:
+    changed = params.replace(r_max=params.r_max * 0.75)
+  counted(changed, *inputs())  # a second trace raises
+
+
+def test_every_planner_is_documented_and_its_settings_are_static():
+  for name in planner_names():
+    spec = base.get_planner(name)
+    assert spec.summary, f"planner {name} has no summary"
+    assert spec.plan.__doc__ or spec.summary
+    hash(spec.settings)  # static settings are a jit cache key
+    for weight, value in spec.defaults.items():
+      assert np.isfinite(float(value)), (name, weight)

@@ -1,0 +1,106 @@
+"""The engine honours what a planner declares: per-robot memory carried between plans, goal
+commitment, the per-step hook, static settings, and an entropy map only for planners that read it.
+
+A probe planner (nearest frontier that counts its plans in its memory, and whose step hook
+counts the steps in which the robot moved) is registered for these tests only.
+"""
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxplore import sim
+from jaxplore.config import config_for, make_params
+from jaxplore.planners import base, frontier
+from conftest import box_world
+
+ROBOTS = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class ProbeSettings:
+  plan_increment: int = 1
+
+
+def init_memory(ctx, params):
+  return {"plans": jnp.int32(0), "moved": jnp.int32(0)}
+
+
+def plan_probe(ctx, view, robot, params, key, memory):
+  plan = frontier.plan_nearest_frontier(ctx, view, robot, params, key)
+  return plan, dict(memory, plans=memory["plans"] + ctx.settings.plan_increment)
+
+
+def count_moves(ctx, params, memory, robot, logodds, moved):
+  return dict(memory, moved=memory["moved"] + moved.astype(jnp.int32))
+
+
+@pytest.fixture(scope="module")
+def probes():
+  for name, commits in (("probe_commit", True), ("probe_replan", False)):
+    base.register(name, summary="test probe", settings=ProbeSettings(), init_memory=init_memory,
+                  commits=commits, step_hook=count_moves)(plan_probe)
+  yield
+  for name in ("probe_commit", "probe_replan"):
+    base.unregister(name)
+
+
+@functools.lru_cache(maxsize=None)
+def rollout(planner, settings=ProbeSettings(), steps=48):
+  grid = box_world(30, 40, walls=((0, 18, 20, 22),))
+  params = make_params(res=grid.res, r_max=1.2, fov=2 * np.pi, r_robot=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=steps, replan_every=2, n_beams=72,
+                      planner=planner, planner_settings=settings, plan_window=0)
+  world = sim.make_world(grid, 0.1)
+  params = sim.broadcast_params(params, ROBOTS)
+  keys = jax.random.split(jax.random.PRNGKey(3), ROBOTS)
+  state, _ = sim.rollout(config, world, params, keys)
+  return jax.tree.map(np.asarray, state)
+
+
+COMMITTED = ("probe_commit", ProbeSettings(plan_increment=3))
+
+
+def test_memory_is_carried_and_the_step_hook_runs_every_moving_step(probes):
+  state = rollout(*COMMITTED)
+  moved = state.steps - state.idle_steps
+  np.testing.assert_array_equal(state.memory["moved"], moved)
+  assert (state.memory["plans"] >= 3).all()
+
+
+def test_a_committed_planner_replans_only_when_its_path_is_done_or_blocked(probes):
+  committed, replanning = rollout(*COMMITTED), rollout("probe_replan")
+  # A committed robot plans at reset's first step and after each idle step (arrival or block).
+  assert (committed.memory["plans"] // 3 <= committed.idle_steps + 1).all()
+  # The same robots replanning every 2 steps plan far more often than they stop.
+  assert (replanning.memory["plans"] > replanning.idle_steps + 1).all()
+
+
+def test_static_settings_reach_the_planner(probes):
+  state = rollout(*COMMITTED)  # each plan adds the setting's increment, 3 (1 by default)
+  assert (state.memory["plans"] % 3 == 0).all() and (state.memory["plans"] > 0).all()
+
+
+def test_settings_resolve_from_user_values_and_unknown_names_are_refused(probes):
+  spec = base.get_planner("probe_commit")
+  assert spec.resolve_settings({"plan_increment": "4"}) == ProbeSettings(plan_increment=4)
+  assert spec.split_overrides({"plan_increment": 2}) == ({}, {"plan_increment": 2})
+  with pytest.raises(ValueError, match="no parameter"):
+    spec.split_overrides({"plan_incremnt": 2})
+  with pytest.raises(ValueError, match="must be a int"):
+    spec.resolve_settings({"plan_increment": "x"})
+
+
+def test_the_entropy_map_is_kept_only_for_planners_that_read_it():
+  grid = box_world(20, 24)
+  params = make_params(res=grid.res, r_max=1.0)
+  world = sim.make_world(grid, 0.2)
+  for planner, kept in (("nearest_frontier", False), ("li2020", True)):
+    config = config_for(grid.shape, grid.res, params, max_steps=8, planner=planner)
+    state = jax.eval_shape(lambda: sim.reset(config, world, params, jax.random.PRNGKey(0)))
+    assert (state.entropy_map is not None) == kept
+    assert (sim.planner_context(config).r_e_cells > 0) == kept
