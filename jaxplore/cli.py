@@ -150,6 +150,10 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
                    help="override a planner weight")
   run.add_argument("--pose-noise", action="store_true", help="noisy odometry, drifting estimate")
+  run.add_argument("--pose-graph", action="store_true", default=None,
+                   help="keep each robot's SLAM pose graph and its metrics (always on for ahmed, ags)")
+  run.add_argument("--graph-loops", type=int, default=None, metavar="N",
+                   help="loop-closure capacity of the pose graph (default 256)")
   run.add_argument("--out", default=None, help="results folder")
   run.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
   run.add_argument("--no-progress", action="store_true")
@@ -231,7 +235,8 @@ def main(argv=None) -> int:
                  preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
                  replan_every=args.replan_every, params=params, planner_params=planner_params,
                  pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
-                 devices=args.devices, plan_window=args.plan_window)
+                 devices=args.devices, plan_window=args.plan_window, pose_graph=args.pose_graph,
+                 graph_loops=args.graph_loops)
 
     result, code = _reporting_errors(compute)
     if code:

@@ -61,6 +61,8 @@ class SimConfig:
       0 = no pose graph. A run that could create more keyframes is refused before compute.
     graph_loops: loop-closure capacity of the pose graph; closures found with the list full are
       counted (``loops_dropped``) and not added.
+    max_loop_cells: static bound of the loop-closure radius ``Params.loop_radius`` in cells (it
+      fixes the samples of a line-of-sight test).
   """
 
   height: int
@@ -83,6 +85,7 @@ class SimConfig:
   plan_window: int = 0
   graph_nodes: int = 0
   graph_loops: int = 256
+  max_loop_cells: int = 40
 
   def __post_init__(self):
     for name in ("height", "width", "n_beams", "max_range_cells", "path_capacity", "replan_every",
@@ -92,7 +95,7 @@ class SimConfig:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
     if self.max_inflation_cells < 0:
       raise ConfigError(f"max_inflation_cells must be >= 0, got {self.max_inflation_cells}")
-    for name in ("graph_nodes", "graph_loops"):
+    for name in ("graph_nodes", "graph_loops", "max_loop_cells"):
       value = getattr(self, name)
       if not isinstance(value, (int, np.integer)) or value < 0:
         raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
@@ -279,9 +282,9 @@ def validate_params(params: Params, config: SimConfig) -> None:
   check("loop_min_age", p.loop_min_age, lambda a: a >= 1, ">= 1")
   check("loop_max_turn", p.loop_max_turn, lambda a: (a >= 0) & (a <= math.pi + 1e-6), "in [0, π]")
   if config.graph_nodes:
-    max_r = config.max_range_cells * config.res
+    max_r = config.max_loop_cells * config.res
     check("loop_radius", p.loop_radius, lambda a: a <= max_r + 1e-6,
-          f"<= max_range_cells * res = {max_r:.3g} m (a loop closure is a scan match)")
+          f"<= max_loop_cells * res = {max_r:.3g} m (raise SimConfig.max_loop_cells)")
     from jaxplore import posegraph  # a cycle at import time: posegraph needs ConfigError
     posegraph.check_capacity(config.graph_nodes, config.max_steps, p)
   check("coverage_goal", p.coverage_goal, lambda a: (a > 0) & (a <= 1), "in (0, 1]")
@@ -339,6 +342,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
       max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
+      max_loop_cells=max(1, math.ceil(float(np.max(np.asarray(params.loop_radius))) / res - 1e-6)),
   )
   if preset is not None:
     kwargs["n_beams"] = PRESETS[preset].n_beams

@@ -282,11 +282,11 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                         distance=state.distance + delta_d)
   state = _sense(config, world, params, state, k_sense, busy)
   if config.graph_nodes:
-    # Keyframes at the estimate after relocalisation; line of sight in the updated belief. The
-    # samples are half a cell apart for loops up to the sensor's range (validate_params).
+    # Keyframes at the estimate after relocalisation; line of sight in the updated belief, sampled
+    # at most half a cell apart (loop_radius <= max_loop_cells * res: validate_params).
     state = state.replace(graph=posegraph.observe(
         state.graph, state.pose_est, v_n, motion.increment(delta_d, delta_phi), busy, state.logodds,
-        world.origin, res, params, 2 * config.max_range_cells + 2))
+        world.origin, res, params, 2 * config.max_loop_cells + 2))
   spec = planners_base.get_planner(config.planner)
   if spec.step_hook is not None:
     memory = spec.step_hook(planner_context(config), params, state.memory,

@@ -1,65 +1,93 @@
-"""The engine's pose graph (sim.State.graph): passive, bounded, recorded, summarised."""
+"""The engine's pose graph (robot.State.graph): passive, bounded, recorded, summarised."""
 
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplore import metrics, posegraph, runner, sim
-from jaxplore.config import ConfigError, config_for, make_params, validate_params
+from jaxplore import metrics, posegraph, robot, runner, sim
+from jaxplore.config import ConfigError, SimConfig, make_params, validate_params
 from tests.conftest import box_world
 
-GRID = box_world(24, 36, 0.1, walls=((8, 16, 12, 14),))
+GRID = box_world(24, 40, 0.1, walls=((8, 16, 16, 18),))
+PARAMS = make_params(res=0.1, r_max=2.0, loop_min_age=5.0, loop_radius=2.0, sigma_d=0.05, sigma_phi=0.05)
+STEPS = 100
+# Once around the wall (east along row 5, north, west along row 19, south) and east again along
+# row 5, where the keyframes close loops to the first ones (same heading).
+ROUTE = ([(5, c) for c in range(4, 25)] + [(r, 24) for r in range(6, 20)] + [(19, c) for c in range(23, 3, -1)]
+         + [(r, 4) for r in range(18, 5, -1)] + [(5, c) for c in range(4, 14)])
+
+
+def drive(graph_nodes: int):
+  """One robot following ROUTE for STEPS steps (no planner), with or without a pose graph."""
+  config = SimConfig(height=24, width=40, res=0.1, n_beams=32, max_range_cells=20, max_steps=STEPS + 1,
+                     path_capacity=len(ROUTE), planner="nearest_frontier", max_inflation_cells=2,
+                     graph_nodes=graph_nodes, graph_loops=16, max_loop_cells=20)
+  world = sim.make_world(GRID, 0.2)
+
+  @jax.jit
+  def run(params):
+    state = robot.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([0.45, 0.55, 0.0]))
+    state = state.replace(waypoints=jnp.asarray(ROUTE, jnp.int32), path_len=jnp.int32(len(ROUTE)),
+                          path_idx=jnp.int32(1), look_at=jnp.asarray(ROUTE[-1], jnp.int32))
+    return jax.lax.scan(lambda s, _: robot.step(config, world, params, s), state, None, length=STEPS)
+
+  return config, world, jax.tree.map(np.asarray, run(PARAMS))
 
 
 @pytest.fixture(scope="module")
-def runs():
-  """The same two robots with and without a pose graph (nearest frontier, li2020 preset)."""
-  out = {}
-  for graph in (False, True):
-    out[graph] = runner.run(world=GRID, planner="fd", robots=2, seed=3, max_steps=80, pose_graph=graph,
-                            graph_loops=8, progress=False, quiet=True, params={"r_max": 2.0})
-  return out
+def drives():
+  bound = posegraph.keyframe_bound(STEPS + 1, PARAMS.v_max, PARAMS.w_max, PARAMS.dt, PARAMS.kf_dist, PARAMS.kf_rot)
+  return {False: drive(0), True: drive(bound)}
 
 
-def test_the_graph_is_passive(runs):
-  off, on = runs[False], runs[True]
-  assert off.state.graph is None and "graph_nodes" not in off.curves
-  for name in ("x", "y", "coverage", "entropy"):
-    np.testing.assert_array_equal(off.curves[name].to_numpy(), on.curves[name].to_numpy())
+def test_the_graph_is_passive(drives):
+  _, _, (state_off, rec_off) = drives[False]
+  _, _, (state_on, rec_on) = drives[True]
+  assert state_off.graph is None and rec_off.graph_nodes is None
+  for name in ("x", "y", "coverage", "entropy", "pose_error"):
+    np.testing.assert_array_equal(getattr(rec_off, name), getattr(rec_on, name))
 
 
-def test_graph_within_its_bound_and_recorded(runs):
-  on = runs[True]
-  config = on.config["sim_config"]
-  params = make_params("li2020", res=0.1, r_max=2.0)
-  assert config["graph_nodes"] == posegraph.keyframe_bound(80, params.v_max, params.w_max, params.dt,
-                                                            params.kf_dist, params.kf_rot)
-  graph = on.state.graph
-  for b in range(2):
-    n, m = int(graph.n_nodes[b]), int(graph.n_loops[b])
-    assert 2 <= n <= config["graph_nodes"]
-    curve = on.curves[on.curves.robot == b]
-    assert curve.graph_nodes.iloc[-1] == n and curve.graph_edges.iloc[-1] == n - 1 + m
-    assert np.all(np.diff(curve.graph_nodes.to_numpy()) >= 0)
-    weights = np.concatenate([graph.chain_w[b, 1:n], graph.loop_w[b, :m]])
-    np.testing.assert_allclose(curve.dopt_mean.iloc[-1], weights.mean(), rtol=1e-5)
-    # Keyframe poses lie on the robot's recorded (exact, noise-free) trajectory.
-    xy = curve[["x", "y"]].to_numpy()
-    for pose in graph.poses[b, 1:n]:
-      assert np.min(np.hypot(*(xy - pose[:2]).T)) < 1e-4
-    row = on.episodes.iloc[b]
-    want = metrics.graph_metrics(graph.chain_w[b], graph.loops[b], graph.loop_w[b], n, m,
-                                 int(graph.loops_dropped[b]))
-    for key, value in want.items():
-      np.testing.assert_allclose(row[key], value, rtol=1e-9)
-    got = metrics.map_quality(on.state.logodds[b], GRID.occupied)
-    assert row["ssim"] == got["ssim"] and row["rmse"] == got["rmse"]
+def test_graph_within_its_bound_recorded_and_closing_the_loop(drives):
+  config, _, (state, rec) = drives[True]
+  graph = state.graph
+  n, m = int(graph.n_nodes), int(graph.n_loops)
+  assert 10 <= n <= config.graph_nodes and m >= 1
+  assert rec.graph_nodes[-1] == n and rec.graph_edges[-1] == n - 1 + m
+  assert np.all(np.diff(rec.graph_nodes) >= 0) and np.all(np.diff(rec.graph_nodes) <= 1)
+  weights = np.concatenate([graph.chain_w[1:n], graph.loop_w[:m]])
+  np.testing.assert_allclose(rec.dopt_mean[-1], weights.mean(), rtol=1e-5)
+  for a, b in graph.loops[:m]:
+    assert b - a >= 5 and np.hypot(*(graph.poses[a, :2] - graph.poses[b, :2])) <= 2.0 + 1e-5
+  # Keyframes sit on the estimated trajectory (the true one within the pose error).
+  xy = np.stack([rec.x, rec.y], -1)
+  for pose in graph.poses[1:n]:
+    assert np.min(np.hypot(*(xy - pose[:2]).T)) < 0.05
+
+
+def test_episode_columns_from_the_final_graph_and_map(drives):
+  config, world, (state, rec) = drives[True]
+  batch = lambda tree: jax.tree.map(lambda x: None if x is None else np.asarray(x)[None], tree)
+  records = jax.tree.map(lambda x: np.asarray(x)[:, None], rec)
+  episodes, curves = runner.tables(config, GRID, world, PARAMS, batch(state), records, 1.0)
+  row = episodes.iloc[0]
+  g = state.graph
+  want = metrics.graph_metrics(g.chain_w, g.loops, g.loop_w, int(g.n_nodes), int(g.n_loops),
+                               int(g.loops_dropped))
+  want.update(metrics.dopt_range(rec.dopt_mean))
+  want.update(metrics.map_quality(state.logodds, GRID.occupied))
+  for key, value in want.items():
+    np.testing.assert_allclose(row[key], value, rtol=1e-9)
+  steps = int(np.argmax(rec.done)) + 1 if rec.done.any() else len(rec.done)  # rows up to the end
+  np.testing.assert_array_equal(curves.graph_nodes.to_numpy(), rec.graph_nodes[:steps])
+  np.testing.assert_allclose(curves.dopt_mean.to_numpy(), rec.dopt_mean[:steps], rtol=1e-6)
 
 
 def test_a_graph_too_small_for_the_run_is_refused():
-  params = make_params("li2020", res=0.1)
-  config = dataclasses.replace(config_for(GRID.shape, 0.1, params, max_steps=500), graph_nodes=100)
+  config = dataclasses.replace(SimConfig(height=24, width=40, res=0.1, max_steps=500, max_loop_cells=20),
+                               graph_nodes=100)
   with pytest.raises(ConfigError, match="holds 100 keyframes.*500 steps"):
-    validate_params(params, config)
+    validate_params(PARAMS, config)

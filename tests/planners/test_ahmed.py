@@ -237,3 +237,53 @@ def test_hallucinated_u1_equals_u1_of_the_rebuilt_graph(transform):
     np.testing.assert_allclose(got, want, rtol=2e-4)
     loops.append(closed)
   assert min(loops) == 0 and max(loops) >= 2, loops  # both the pendant-only and the low-rank paths ran
+
+
+# --- whole utility (Eq 9) ------------------------------------------------------------------------
+
+
+def test_candidates_filters_and_eq_9_from_their_parts():
+  """Every candidate's utility is U1 + (1 − E/K)·10^β + exp(−λ·d), with E/K the NumPy path
+  entropy of its line; the filters of the authors' code hold for every kept candidate."""
+  from jaxplore import mapping
+  from jaxplore.planners.base import PlannerContext
+  h, w = 26, 34
+  state = np.full((h, w), 2)  # 0 free, 1 occupied, 2 unknown
+  state[2:20, 2:22] = 0
+  state[2:20, 2] = state[2, 2:22] = state[19, 2:22] = 1
+  state[8:12, 10:14] = 2  # an unknown pocket inside the known room
+  state[14, 5:12] = 1
+  logodds = np.where(state == 0, -3.0, np.where(state == 1, 3.0, 0.0)).astype(np.float32)
+  params = make_params(r_robot=0.1, planner=W_AHMED)
+  free, occ, unk = mapping.classify(jnp.asarray(logodds), params)
+  inflated = mapping.inflate(occ, 1.0, 1)
+  robot = base.RobotView(pose=jnp.asarray([0.65, 0.55, 0.0]), cell=jnp.asarray([5, 6], jnp.int32),
+                         cov=jnp.eye(3))
+  graph = posegraph.init(robot.pose, 16, 4)
+  view = base.BeliefView(logodds=jnp.asarray(logodds), entropy_map=None, free=free, occupied=occ, unknown=unk,
+                         inflated=inflated, traversable=free & ~inflated,
+                         frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros((h, w), bool),
+                         pose_graph=graph)
+  settings = ahmed.Settings(max_candidates=16, max_new_nodes=4, halluc_path_cells=128)
+  ctx = PlannerContext(height=h, width=w, res=0.1, path_capacity=64, max_inflation_cells=1, settings=settings)
+  found, keep, utility, _, _, parts = jax.jit(
+      lambda v, r, p, k, g: ahmed.score_candidates(ctx, v, r, p, k, g, settings, True))(
+          view, robot, params, jax.random.PRNGKey(0), graph)
+  found, keep, utility = jax.tree.map(np.asarray, (found, keep, utility))
+  u1 = np.asarray(parts["u1"])
+  assert keep.sum() >= 3
+  r, c = np.mgrid[:h, :w]
+  for k in np.nonzero(found.valid)[0]:
+    goal = found.goal[k]
+    disc = (r - goal[0]) ** 2 + (c - goal[1]) ** 2 <= 10.0**2
+    unknown_area = (np.asarray(unk) & disc).sum() * 0.01
+    dist = math.hypot(*(goal - np.array([5, 6]))) * 0.1
+    want_keep = (not np.asarray(inflated)[goal[0], goal[1]]) and unknown_area >= 0.45 and dist >= 0.25
+    assert keep[k] == want_keep
+    if not keep[k]:
+      assert utility[k] == -np.inf
+      continue
+    cells = greedy_line((5, 6), tuple(goal))
+    e = np.mean([entropy_bits(0.1) if np.asarray(unk)[i, j] else entropy_bits(0.45) for i, j in cells])
+    rho = 10.0 ** (math.floor(math.log10(u1[k])) + 1 if u1[k] >= 1 else 1)
+    np.testing.assert_allclose(utility[k], u1[k] + (1 - e) * rho + math.exp(-0.6 * dist), rtol=1e-5)
