@@ -33,27 +33,25 @@ def main(argv=None):
   parser.add_argument("--devices", type=int, default=2)
   args = parser.parse_args(argv)
   os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
-  import dataclasses
-
   import jax
   import jax.numpy as jnp
   import numpy as np
   from jax.sharding import Mesh, PartitionSpec as P
 
-  from jaxplore import runner, sim
+  from jaxplore import sim
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
 
   rows = []
   states = None
   n_dev = min(args.devices, len(jax.devices()))
   for label in args.planners.split(","):
     planner, _, variant = label.partition("/")
-    grid, config, params, _ = runner.prepare(world=args.world, planner=planner, robots=args.robots,
-                                             preset=None, params=PARAMS, max_steps=args.warm_steps + 8,
-                                             pose_graph=True, graph_loops=args.graph_loops)
-    if variant == "whole":
-      config = dataclasses.replace(config, plan_window=0)
+    resolved = resolve(RunSpec(world=args.world, planner=planner, robots=args.robots, preset=None,
+                               params=PARAMS, max_steps=args.warm_steps + 8, pose_graph=True,
+                               graph_loops=args.graph_loops, plan_window=0 if variant == "whole" else None))
+    grid, config, params, world = resolved.grid, resolved.config, resolved.params, resolved.world
     window = config.plan_window if sim.uses_window(config) else "off"
-    world = sim.make_world(grid, float(params.r_robot))
     params_b = sim.broadcast_params(params, args.robots)
     if states is None:  # the same belief states and graphs for every planner
       keys = jax.random.split(jax.random.PRNGKey(0), args.robots)

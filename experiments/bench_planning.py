@@ -27,26 +27,24 @@ def main(argv=None):
   parser.add_argument("--devices", type=int, default=2)
   args = parser.parse_args(argv)
   os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
-  import dataclasses
 
   import jax
   import jax.numpy as jnp
   import numpy as np
   from jax.sharding import Mesh, PartitionSpec as P
 
-  from jaxplore import runner, sim
-  from jaxplore.planners import get_planner
+  from jaxplore import sim
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
 
   rows = []
   states = None
   for planner, whole_grid in (("nearest_frontier", False), ("nearest_frontier", True), ("li2020", False)):
-    grid, config, params, _ = runner.prepare(world=args.world, planner=planner, robots=args.robots,
-                                             max_steps=args.warm_steps + 8,
-                                             planner_params=dict(get_planner(planner).defaults))
-    if whole_grid:
-      config = dataclasses.replace(config, plan_window=0)
+    resolved = resolve(RunSpec(world=args.world, planner=planner, robots=args.robots,
+                               max_steps=args.warm_steps + 8,
+                               plan_window=0 if whole_grid else None))
+    config, params, world = resolved.config, resolved.params, resolved.world
     window = config.plan_window if sim.uses_window(config) else "off"
-    world = sim.make_world(grid, float(params.r_robot))
     params_b = sim.broadcast_params(params, args.robots)
     if states is None:  # the same belief states for both planners
       keys = jax.random.split(jax.random.PRNGKey(0), args.robots)

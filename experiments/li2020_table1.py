@@ -68,7 +68,9 @@ def main(argv=None):
   import pandas as pd
 
   import jaxplore
-  from jaxplore import plot, runner
+  from jaxplore import plot
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
 
   out = Path(args.out)
   out.mkdir(parents=True, exist_ok=True)
@@ -118,7 +120,7 @@ def main(argv=None):
       return f"{int(g.max_steps.iloc[0])}"
     # Parts written before the budget was recorded ran with the runner's default.
     spec, res, _ = WORLDS[g.world.iloc[0]]
-    return f"{runner.prepare(world=spec, planner='nearest_frontier', robots=1, preset='li2020', res=res)[1].max_steps}"
+    return f"{resolve(RunSpec(world=spec, robots=1, preset='li2020', res=res)).config.max_steps}"
   episodes.to_parquet(out / "episodes.parquet", index=False)
   curves.to_parquet(out / "curves.parquet", index=False)
 

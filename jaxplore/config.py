@@ -140,8 +140,13 @@ class Params:
   dt: Any = 0.4  # s
   r_robot: Any = 0.2  # m
   # localisation (Li Eq 16-17; relocalisation by a Kalman update)
-  sigma_d: Any = 1.0
-  sigma_phi: Any = 1.0
+  sigma_d: Any = 1.0  # Li's planning model V_n (Eq 16): std per metre driven, for Σ
+  sigma_phi: Any = 1.0  # and per radian turned
+  # The simulated odometry error with ``pose_noise`` (not Li's V_n, a 100 % std per metre):
+  # zero-mean Gaussian increments of a wheeled robot whose SLAM front end keeps the error to a
+  # few percent, corrected further by relocalisation.
+  odom_noise_d: Any = 0.03  # std of the distance (and lateral) error per metre driven
+  odom_noise_phi: Any = 0.03  # std of the heading error per radian turned
   sigma0: Any = 1e-4  # initial pose covariance, diag, m² and rad²
   reloc_min_hits: Any = 20.0  # beams that must end on well-mapped occupied cells
   reloc_entropy: Any = 0.3  # "well-mapped": cell entropy below this, nats
@@ -273,7 +278,8 @@ def validate_params(params: Params, config: SimConfig) -> None:
   max_rr = config.max_inflation_cells * config.res
   check("r_robot", p.r_robot, lambda a: a <= max_rr + 1e-6,
         f"<= max_inflation_cells * res = {max_rr:.3g} m (raise SimConfig.max_inflation_cells)")
-  for name in ("sigma_d", "sigma_phi", "reloc_min_hits", "reloc_entropy"):
+  for name in ("sigma_d", "sigma_phi", "odom_noise_d", "odom_noise_phi", "reloc_min_hits",
+               "reloc_entropy"):
     check(name, getattr(p, name), lambda a: a >= 0, ">= 0")
   for name in ("sigma0", "reloc_var_xy", "reloc_var_theta"):
     check(name, getattr(p, name), positive, "> 0")

@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplore import metrics, posegraph, robot, runner, sim
+from jaxplore import metrics, posegraph, results, robot, sim
 from jaxplore.config import ConfigError, SimConfig, make_params, validate_params
 from tests.conftest import box_world
 
 GRID = box_world(24, 40, 0.1, walls=((8, 16, 16, 18),))
-PARAMS = make_params(res=0.1, r_max=2.0, loop_min_age=5.0, loop_radius=2.0, sigma_d=0.05, sigma_phi=0.05)
+PARAMS = make_params(res=0.1, r_max=2.0, loop_min_age=5.0, loop_radius=2.0)
 STEPS = 100
 # Once around the wall (east along row 5, north, west along row 19, south) and east again along
 # row 5, where the keyframes close loops to the first ones (same heading).
@@ -72,7 +72,7 @@ def test_episode_columns_from_the_final_graph_and_map(drives):
   config, world, (state, rec) = drives[True]
   batch = lambda tree: jax.tree.map(lambda x: None if x is None else np.asarray(x)[None], tree)
   records = jax.tree.map(lambda x: np.asarray(x)[:, None], rec)
-  episodes, curves = runner.tables(config, GRID, world, PARAMS, batch(state), records, 1.0)
+  episodes, curves = results.tables(config, GRID, world, batch(state), records, 1.0)
   row = episodes.iloc[0]
   g = state.graph
   want = metrics.graph_metrics(g.chain_w, g.loops, g.loop_w, int(g.n_nodes), int(g.n_loops),
