@@ -5,10 +5,10 @@ the authors' local planner) with a 180° / 6 m lidar (σ 0.01 m), Karto SLAM. He
 every planner starts at the same spawn point, as in a Gazebo world (the free cell farthest from
 any wall: willow's cluttered rooms otherwise put random starts between table legs, where a robot
 whose noisy map closes a 0.5 m gap has nowhere to go), the runs differing by their noise (one
-seed per run); a mission budget of ``--minutes`` of motion
-(``max_steps = minutes·60 / dt``, dt = res / v_max), the engine's odometry noise (3 % per metre
-and per radian) with its relocalisation, and every robot's pose graph (:mod:`jaxplore.posegraph`) for the
-graph metrics of all three planners. Every (world, planner) pair is one batched run, saved as it
+seed per run); a mission budget of ``--minutes`` of motion (``max_steps = minutes·60 / dt``,
+dt = res / v_max), the engine's odometry noise (3 % per metre and per radian) with its
+relocalisation, and every robot's pose graph (:mod:`jaxplore.posegraph`) for the graph metrics
+of all three planners. Every (world, planner) pair is one batched run, saved as it
 finishes and reused by a later invocation with the same settings.
 
 Table I: λ₂, average degree, τ̂, SSIM, RMSE (mean over runs) and the final % discovered
@@ -68,7 +68,8 @@ def main(argv=None):
   parser.add_argument("--worlds", default=",".join(WORLDS))
   parser.add_argument("--planners", default=",".join(PLANNERS))
   parser.add_argument("--graph-loops", type=int, default=1024,
-                      help="loop-closure capacity of each pose graph (closures beyond it are counted)")
+                      help="loop-closure capacity of each pose graph (closures beyond it are "
+                      "counted)")
   parser.add_argument("--devices", type=int, default=2)
   parser.add_argument("--quick", action="store_true")
   parser.add_argument("--out", default=str(RESULTS / "ahmed_table1"))
@@ -121,7 +122,8 @@ def main(argv=None):
                                  start=str(tuple(round(v, 2) for v in start)),
                                  compile_s=result.timing["compile_s"],
                                  graph_nodes_capacity=result.config["sim_config"]["graph_nodes"])
-      keep = ["robot", "step", "time", "coverage", "distance", "graph_nodes", "graph_edges", "dopt_mean"]
+      keep = ["robot", "step", "time", "coverage", "distance", "graph_nodes", "graph_edges",
+              "dopt_mean"]
       c = result.curves[keep].assign(world=world, planner=planner)
       for frame, path in ((e, part_e), (c, part_c)):
         frame.to_parquet(path.with_name(path.name + ".tmp"), index=False)
@@ -138,18 +140,22 @@ def main(argv=None):
     return f"{values.mean():.{digits}g} ± {values.std():.2g}"
 
   t1 = ["| world | method | " + " | ".join(f"{label} (paper)" for _, label in T1_COLUMNS) +
-        " | % discovered | keyframes | loop closures (dropped) |", "|---|---|" + "---|" * (len(T1_COLUMNS) + 3)]
-  t2 = ["| world | method | D-opt max (paper) | D-opt min (paper) | diff | %R (paper) |", "|---|---|---|---|---|---|"]
+        " | % discovered | keyframes | loop closures (dropped) |",
+        "|---|---|" + "---|" * (len(T1_COLUMNS) + 3)]
+  t2 = ["| world | method | D-opt max (paper) | D-opt min (paper) | diff | %R (paper) |",
+        "|---|---|---|---|---|---|"]
   for (world, planner), g in episodes.groupby(["world", "planner"], sort=False):
     paper = PAPER_T1.get((world, planner))
-    cells = [f"{fmt(g[col])} ({paper[k] if paper else '–'})" for k, (col, _) in enumerate(T1_COLUMNS)]
+    cells = [f"{fmt(g[col])} ({paper[k] if paper else '–'})"
+             for k, (col, _) in enumerate(T1_COLUMNS)]
     loops = g.graph_edges - g.graph_nodes + 1
     t1.append(f"| {world} | {planner} | " + " | ".join(cells) +
               f" | {fmt(100 * g.coverage)} | {g.graph_nodes.mean():.0f} | {loops.mean():.0f} "
               f"({g.loops_dropped.mean():.0f}) |")
     p2 = PAPER_T2.get((world, planner), ("–", "–", "–"))
-    t2.append(f"| {world} | {planner} | {fmt(g.dopt_max, 4)} ({p2[0]}) | {fmt(g.dopt_min, 4)} ({p2[1]}) | "
-              f"{(g.dopt_max - g.dopt_min).mean():.4g} | {fmt(g.dopt_R)} ({p2[2]}) |")
+    t2.append(f"| {world} | {planner} | {fmt(g.dopt_max, 4)} ({p2[0]}) | "
+              f"{fmt(g.dopt_min, 4)} ({p2[1]}) | {(g.dopt_max - g.dopt_min).mean():.4g} | "
+              f"{fmt(g.dopt_R)} ({p2[2]}) |")
 
   gains = []
   final = episodes.groupby(["world", "planner"]).coverage.mean()
@@ -162,7 +168,8 @@ def main(argv=None):
         gains.append(f"- {world}: ahmed covers {gain:+.0f} % relative to {other} "
                      f"(paper: +{PAPER_GAIN[world][other]} %)")
     if (world, "fd") in final:
-      gains.append(f"- {world}: FD ends at {100 * final[(world, 'fd')]:.1f} % (paper: {PAPER_FD_FINAL[world]} %)")
+      gains.append(f"- {world}: FD ends at {100 * final[(world, 'fd')]:.1f} % "
+                   f"(paper: {PAPER_FD_FINAL[world]} %)")
 
   # Fig 5: % discovered vs mission time, mean ± std over runs (a finished robot keeps its value).
   horizon = args.minutes * 60.0
@@ -200,20 +207,23 @@ def main(argv=None):
     ax.set_xlabel("mission time (s)")
   axes[0][0].set_ylabel("mean edge D-optimality")
   axes[0][0].legend()
-  fig.suptitle(f"Fig 4 layout: mean edge D-optimality of the pose graph, mean over {args.runs} runs")
+  fig.suptitle(f"Fig 4 layout: mean edge D-optimality of the pose graph, mean over {args.runs} "
+               f"runs")
   fig.tight_layout()
   fig.savefig(out.parent / "ahmed_fig4.png", dpi=110)
 
   parts_s = float(episodes.groupby(["world", "planner"]).wall_s.first().sum())
+  command = " ".join(argv if argv is not None else sys.argv[1:])
   header = (f"Ahmed et al. 2024 Tables I-II layout: {args.runs} runs per cell (same starts), "
-            f"{args.minutes:g}-minute mission budget, 6 m / 180° lidar (360 beams, σ 0.01 m), 0.3 m/s, "
-            f"0.8 rad/s, odometry noise 3 % with relocalisation; loop-closure capacity {args.graph_loops}.\n"
-            f"command: python experiments/ahmed_table1.py {' '.join(argv if argv is not None else sys.argv[1:])}\n"
-            f"wall time of this invocation {time.perf_counter() - started:.0f} s; of the runs behind the "
-            f"tables {parts_s:.0f} s; {time.strftime('%Y-%m-%dT%H:%M:%S')}\n\n")
-  text = (header + "Table I (mean ± std over runs; the paper's value in brackets)\n\n" + "\n".join(t1) +
-          "\n\nTable II (the mean edge D-optimality over time: its max, min and %R = 100·(max − min)/max)\n\n" +
-          "\n".join(t2) + "\n\nCoverage (Fig 5, `ahmed_fig5.png`)\n\n" + "\n".join(gains) + "\n")
+            f"{args.minutes:g}-minute mission budget, 6 m / 180° lidar (360 beams, σ 0.01 m), "
+            f"0.3 m/s, 0.8 rad/s, odometry noise 3 % with relocalisation; loop-closure capacity "
+            f"{args.graph_loops}.\ncommand: python experiments/ahmed_table1.py {command}\n"
+            f"wall time of this invocation {time.perf_counter() - started:.0f} s; of the runs "
+            f"behind the tables {parts_s:.0f} s; {time.strftime('%Y-%m-%dT%H:%M:%S')}\n\n")
+  text = (header + "Table I (mean ± std over runs; the paper's value in brackets)\n\n"
+          + "\n".join(t1) + "\n\nTable II (the mean edge D-optimality over time: its max, min and "
+          "%R = 100·(max − min)/max)\n\n" + "\n".join(t2)
+          + "\n\nCoverage (Fig 5, `ahmed_fig5.png`)\n\n" + "\n".join(gains) + "\n")
   (out.parent / f"{out.name}.md").write_text(text)
   print(text)
 

@@ -200,7 +200,8 @@ def _add_spec_flags(p):
   p.add_argument("--pose-noise", action="store_true", default=None,
                  help="noisy odometry, drifting estimate")
   p.add_argument("--pose-graph", action="store_true", default=None,
-                 help="keep each robot's SLAM pose graph and its metrics (always on for ahmed, ags)")
+                 help="keep each robot's SLAM pose graph and its metrics (always on for ahmed "
+                 "and ags)")
   p.add_argument("--graph-loops", type=int, default=None, metavar="N",
                  help="loop-closure capacity of the pose graph (default 256)")
   p.add_argument("--rate-interval", type=float, default=None,

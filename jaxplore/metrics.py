@@ -91,7 +91,8 @@ def graph_laplacian_sparse(chain_w, loops, loop_w, n_nodes: int, n_loops: int):
   k = np.arange(1, n_nodes)
   src = np.concatenate([k - 1, np.asarray(loops)[:n_loops, 0]])
   dst = np.concatenate([k, np.asarray(loops)[:n_loops, 1]])
-  w = np.concatenate([np.asarray(chain_w, np.float64)[1:n_nodes], np.asarray(loop_w, np.float64)[:n_loops]])
+  w = np.concatenate([np.asarray(chain_w, np.float64)[1:n_nodes],
+                      np.asarray(loop_w, np.float64)[:n_loops]])
   adj = sparse.coo_matrix((w, (src, dst)), shape=(n_nodes, n_nodes)).tocsr()
   adj = adj + adj.T
   return sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
@@ -101,7 +102,8 @@ def graph_laplacian_sparse(chain_w, loops, loop_w, n_nodes: int, n_loops: int):
 DENSE_EIG_NODES = 600
 
 
-def graph_metrics(chain_w, loops, loop_w, n_nodes: int, n_loops: int, loops_dropped: int = 0) -> dict:
+def graph_metrics(chain_w, loops, loop_w, n_nodes: int, n_loops: int,
+                  loops_dropped: int = 0) -> dict:
   """Ahmed et al. Table I's graph connectivity of one pose graph (host side, float64).
 
   Returns keyframes, edges, ``lambda2`` (algebraic connectivity of the D-optimality-weighted
@@ -114,9 +116,11 @@ def graph_metrics(chain_w, loops, loop_w, n_nodes: int, n_loops: int, loops_drop
   n, m = int(n_nodes), int(n_loops)
   edges = n - 1 + m
   lap = graph_laplacian_sparse(chain_w, loops, loop_w, n, m)
-  weights = np.concatenate([np.asarray(chain_w, np.float64)[1:n], np.asarray(loop_w, np.float64)[:m]])
+  weights = np.concatenate([np.asarray(chain_w, np.float64)[1:n],
+                            np.asarray(loop_w, np.float64)[:m]])
   out = {"graph_nodes": n, "graph_edges": edges, "loops_dropped": int(loops_dropped),
-         "avg_degree": 2.0 * edges / n, "dopt_mean": float(weights.mean()) if edges else float("nan")}
+         "avg_degree": 2.0 * edges / n,
+         "dopt_mean": float(weights.mean()) if edges else float("nan")}
   if n >= 2:
     lu = splinalg.splu(sparse.csc_matrix(lap[1:, 1:]))
     out["logdet"] = float(np.sum(np.log(np.abs(lu.U.diagonal()))))

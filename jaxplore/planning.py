@@ -49,7 +49,8 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
       unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,
       frontier=mapping.frontier(free, unknown, occupied),
       blacklist=state.blacklist,
-      pose_graph=state.graph if planners_base.get_planner(config.planner).needs_pose_graph else None)
+      pose_graph=(state.graph if planners_base.get_planner(config.planner).needs_pose_graph
+                  else None))
 
 
 def _window_origin(config: SimConfig, cell, side: int):

@@ -119,7 +119,8 @@ def keyframe_bound(max_steps: int, v_max, w_max, dt, kf_dist, kf_rot) -> int:
   A step drives at most ``v_max·dt`` and turns at most ``w_max·dt``; a keyframe is created when
   the displacement since the last one reaches ``kf_dist`` or its turn ``kf_rot``, and those are at
   most the distance and turn travelled, so each keyframe uses up at least one unit of
-  ``distance / kf_dist + turn / kf_rot``; and at most one is created per step. Array arguments (a sweep) give the largest bound over their values.
+  ``distance / kf_dist + turn / kf_rot``; and at most one is created per step. Array arguments
+  (a sweep) give the largest bound over their values.
   """
   per_step = float(np.max(np.asarray(v_max, np.float64) * np.asarray(dt, np.float64)
                           / np.asarray(kf_dist, np.float64)
@@ -199,8 +200,8 @@ def observe(graph: PoseGraph, pose, v_n, increment, active, logodds, origin, res
               & (dist <= params.loop_radius) & (turn <= params.loop_max_turn))
   score, nearest = jax.lax.top_k(jnp.where(eligible, -dist, -jnp.inf), min(LOOP_CANDIDATES, n_cap))
   free_logit = mapping.logit(params.p_free)
-  sight = jax.vmap(lambda j: line_free(logodds, graph.poses[j, :2], pose[:2], origin, res, free_logit,
-                                       los_samples))(nearest)
+  sight = jax.vmap(lambda j: line_free(logodds, graph.poses[j, :2], pose[:2], origin, res,
+                                       free_logit, los_samples))(nearest)
   ok = jnp.isfinite(score) & sight
   j = nearest[jnp.argmax(ok)]
   closes = new & jnp.any(ok)

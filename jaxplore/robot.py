@@ -219,8 +219,10 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
       done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
-      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config), params),
-      graph=posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes else None)
+      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config),
+                                                                      params),
+      graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes
+             else None))
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
   return _check_complete(world, params, state)
 

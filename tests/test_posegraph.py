@@ -30,8 +30,8 @@ def random_graph(rng, n, m, n_cap=N_CAP, m_cap=M_CAP):
   loop_w = np.zeros(m_cap, np.float32)
   loop_w[:m] = rng.uniform(0.5, 4.0, m)
   graph = posegraph.init(jnp.zeros(3), n_cap, m_cap)
-  return graph.replace(chain_w=jnp.asarray(chain_w), loops=jnp.asarray(loops), loop_w=jnp.asarray(loop_w),
-                       n_nodes=jnp.int32(n), n_loops=jnp.int32(m))
+  return graph.replace(chain_w=jnp.asarray(chain_w), loops=jnp.asarray(loops),
+                       loop_w=jnp.asarray(loop_w), n_nodes=jnp.int32(n), n_loops=jnp.int32(m))
 
 
 def to_networkx(graph):
@@ -82,10 +82,11 @@ def test_structured_logdet_matches_dense(transform):
   for n, m in cases(transform, GRAPHS):
     graph = random_graph(rng, n, min(m, max(0, n - 2)))
     logdet, resistance, _, _ = transform(posegraph.logdet_parts)(graph)
-    np.testing.assert_allclose(float(logdet), numpy_reduced_logdet(to_networkx(graph)), rtol=1e-5, atol=1e-4)
+    want = numpy_reduced_logdet(to_networkx(graph))
+    np.testing.assert_allclose(float(logdet), want, rtol=1e-5, atol=1e-4)
     w = np.asarray(graph.chain_w, np.float64)
-    np.testing.assert_allclose(np.asarray(resistance)[:n], np.concatenate([[0.0], np.cumsum(1 / w[1:n])]),
-                               rtol=1e-5)
+    want = np.concatenate([[0.0], np.cumsum(1 / w[1:n])])
+    np.testing.assert_allclose(np.asarray(resistance)[:n], want, rtol=1e-5)
 
 
 @EAGER_AND_JIT
@@ -122,7 +123,8 @@ def test_algebraic_connectivity_matches_networkx(transform):
     graph = random_graph(rng, n, m)
     valid = jnp.arange(N_CAP) < n
     got = transform(posegraph.algebraic_connectivity)(posegraph.graph_laplacian(graph), valid)
-    want = nx.algebraic_connectivity(to_networkx(graph), weight="weight", method="lanczos", tol=1e-10)
+    want = nx.algebraic_connectivity(to_networkx(graph), weight="weight", method="lanczos",
+                                     tol=1e-10)
     np.testing.assert_allclose(float(got), want, rtol=1e-4, atol=1e-6)
 
 
@@ -138,24 +140,25 @@ def test_degree_and_tree_connectivity():
   # The complete graph with unit weights has n^(n-2) spanning trees (Cayley): tau-hat = 1.
   k7 = nx.complete_graph(7)
   nx.set_edge_attributes(k7, 1.0, "weight")
-  np.testing.assert_allclose(float(posegraph.tree_connectivity(jnp.float32(numpy_reduced_logdet(k7)), 7)),
-                             1.0, rtol=1e-6)
+  tau = posegraph.tree_connectivity(jnp.float32(numpy_reduced_logdet(k7)), 7)
+  np.testing.assert_allclose(float(tau), 1.0, rtol=1e-6)
 
 
 @EAGER_AND_JIT
 def test_d_optimality_of_known_matrices(transform):
   q, _ = np.linalg.qr(np.random.default_rng(5).normal(size=(3, 3)))
   info = q @ np.diag([2.0, 4.0, 8.0]) @ q.T
-  np.testing.assert_allclose(float(transform(posegraph.d_optimality)(jnp.asarray(info, jnp.float32))), 4.0,
-                             rtol=1e-5)
+  d_opt = transform(posegraph.d_optimality)
+  np.testing.assert_allclose(float(d_opt(jnp.asarray(info, jnp.float32))), 4.0, rtol=1e-5)
   # Ahmed et al.'s hallucinated odometry information, ODOM_COV^-1 / 2: D-opt 21.38.
   odom_cov = np.array([[0.04, 0.001, 0.0], [0.001, 0.04, 0.0], [0.0, 0.0, 0.008]])
   fim = np.linalg.inv(odom_cov) / 2
-  np.testing.assert_allclose(float(transform(posegraph.d_optimality)(jnp.asarray(fim, jnp.float32))),
+  np.testing.assert_allclose(float(d_opt(jnp.asarray(fim, jnp.float32))),
                              np.linalg.det(fim) ** (1 / 3), rtol=1e-5)
   assert abs(float(posegraph.d_optimality(jnp.asarray(fim, jnp.float32))) - 21.38) < 0.01
   cov = jnp.asarray(np.linalg.inv(info), jnp.float32)
-  np.testing.assert_allclose(float(transform(posegraph.d_optimality_of_covariance)(cov)), 4.0, rtol=1e-5)
+  d_opt_cov = transform(posegraph.d_optimality_of_covariance)
+  np.testing.assert_allclose(float(d_opt_cov(cov)), 4.0, rtol=1e-5)
 
 
 # --- growing the graph ---------------------------------------------------------------------------
@@ -167,8 +170,8 @@ FREE_LOGIT = -3.0
 
 def observe_jit():
   return jax.jit(lambda g, pose, dd, dphi, logodds: posegraph.observe(
-      g, pose, jnp.diag(jnp.stack([dd, dd, dphi])) * 0.01, motion.increment(dd, dphi), jnp.bool_(True),
-      logodds, jnp.zeros(2), RES, PARAMS, 24))
+      g, pose, jnp.diag(jnp.stack([dd, dd, dphi])) * 0.01, motion.increment(dd, dphi),
+      jnp.bool_(True), logodds, jnp.zeros(2), RES, PARAMS, 24))
 
 
 OBSERVE = observe_jit()
@@ -200,10 +203,10 @@ def test_keyframes_every_kf_dist_and_kf_rot_with_accumulated_covariance():
   assert int(graph.n_nodes) >= 3
   np.testing.assert_allclose(kf[-1], [1.2, 0.5, 0.8], atol=1e-5)
   np.testing.assert_allclose(kf[-2], [1.2, 0.5, 0.4], atol=1e-5)
-  # The turn-only edge: covariance = 0.018² I + Σ V_n of its two steps (dphi = 0.2: 0.01 * 0.2 each).
+  # The turn-only edge: covariance 0.018² I + Σ V_n of its two steps (dphi = 0.2: 0.002 each).
   cov = np.diag([0.018**2, 0.018**2, 0.018**2 + 2 * 0.002])
-  np.testing.assert_allclose(float(graph.chain_w[int(graph.n_nodes) - 1]), np.linalg.det(cov) ** (-1 / 3),
-                             rtol=1e-4)
+  np.testing.assert_allclose(float(graph.chain_w[int(graph.n_nodes) - 1]),
+                             np.linalg.det(cov) ** (-1 / 3), rtol=1e-4)
 
 
 def loop_scene(blocked=False, heading=0.0):
@@ -252,7 +255,9 @@ def test_capacity_refusal_names_the_numbers():
   params = make_params(v_max=0.3, w_max=0.8, dt=0.5, kf_dist=0.3, kf_rot=0.3)
   # Per step: 0.15 / 0.3 + 0.4 / 0.3 > 1, so every step may make a keyframe.
   assert posegraph.keyframe_bound(1000, 0.3, 0.8, 0.5, 0.3, 0.3) == 1001
-  assert posegraph.keyframe_bound(1000, 0.3, 0.1, 0.5, 0.3, 0.3) == 1 + math.ceil(1000 * (0.5 + 0.05 / 0.3) * (1 + 1e-4))
-  with pytest.raises(ConfigError, match=r"holds 512 keyframes.*1000 steps.*create 1001.*graph_nodes to 1001"):
+  want = 1 + math.ceil(1000 * (0.5 + 0.05 / 0.3) * (1 + 1e-4))
+  assert posegraph.keyframe_bound(1000, 0.3, 0.1, 0.5, 0.3, 0.3) == want
+  message = r"holds 512 keyframes.*1000 steps.*create 1001.*graph_nodes to 1001"
+  with pytest.raises(ConfigError, match=message):
     posegraph.check_capacity(512, 1000, params)
   posegraph.check_capacity(1001, 1000, params)

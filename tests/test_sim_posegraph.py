@@ -16,30 +16,35 @@ PARAMS = make_params(res=0.1, r_max=2.0, loop_min_age=5.0, loop_radius=2.0)
 STEPS = 100
 # Once around the wall (east along row 5, north, west along row 19, south) and east again along
 # row 5, where the keyframes close loops to the first ones (same heading).
-ROUTE = ([(5, c) for c in range(4, 25)] + [(r, 24) for r in range(6, 20)] + [(19, c) for c in range(23, 3, -1)]
-         + [(r, 4) for r in range(18, 5, -1)] + [(5, c) for c in range(4, 14)])
+ROUTE = ([(5, c) for c in range(4, 25)] + [(r, 24) for r in range(6, 20)]
+         + [(19, c) for c in range(23, 3, -1)] + [(r, 4) for r in range(18, 5, -1)]
+         + [(5, c) for c in range(4, 14)])
 
 
 def drive(graph_nodes: int):
   """One robot following ROUTE for STEPS steps (no planner), with or without a pose graph."""
-  config = SimConfig(height=24, width=40, res=0.1, n_beams=32, max_range_cells=20, max_steps=STEPS + 1,
+  config = SimConfig(height=24, width=40, res=0.1, n_beams=32, max_range_cells=20,
+                     max_steps=STEPS + 1,
                      path_capacity=len(ROUTE), planner="nearest_frontier", max_inflation_cells=2,
                      graph_nodes=graph_nodes, graph_loops=16, max_loop_cells=20)
   world = sim.make_world(GRID, 0.2)
 
   @jax.jit
   def run(params):
-    state = robot.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([0.45, 0.55, 0.0]))
+    start = jnp.asarray([0.45, 0.55, 0.0])
+    state = robot.reset(config, world, params, jax.random.PRNGKey(0), start)
     state = state.replace(waypoints=jnp.asarray(ROUTE, jnp.int32), path_len=jnp.int32(len(ROUTE)),
                           path_idx=jnp.int32(1), look_at=jnp.asarray(ROUTE[-1], jnp.int32))
-    return jax.lax.scan(lambda s, _: robot.step(config, world, params, s), state, None, length=STEPS)
+    return jax.lax.scan(lambda s, _: robot.step(config, world, params, s), state, None,
+                        length=STEPS)
 
   return config, world, jax.tree.map(np.asarray, run(PARAMS))
 
 
 @pytest.fixture(scope="module")
 def drives():
-  bound = posegraph.keyframe_bound(STEPS + 1, PARAMS.v_max, PARAMS.w_max, PARAMS.dt, PARAMS.kf_dist, PARAMS.kf_rot)
+  bound = posegraph.keyframe_bound(STEPS + 1, PARAMS.v_max, PARAMS.w_max, PARAMS.dt,
+                                   PARAMS.kf_dist, PARAMS.kf_rot)
   return {False: drive(0), True: drive(bound)}
 
 
@@ -87,7 +92,7 @@ def test_episode_columns_from_the_final_graph_and_map(drives):
 
 
 def test_a_graph_too_small_for_the_run_is_refused():
-  config = dataclasses.replace(SimConfig(height=24, width=40, res=0.1, max_steps=500, max_loop_cells=20),
-                               graph_nodes=100)
+  config = SimConfig(height=24, width=40, res=0.1, max_steps=500, max_loop_cells=20)
+  config = dataclasses.replace(config, graph_nodes=100)
   with pytest.raises(ConfigError, match="holds 100 keyframes.*500 steps"):
     validate_params(PARAMS, config)

@@ -90,7 +90,8 @@ DEFAULTS = {
     "min_robot_dist": 0.25,  # m
 }
 # AGS has no path entropy and no distance decay.
-AGS_DEFAULTS = {k: v for k, v in DEFAULTS.items() if k not in ("lambda", "gamma_cells", "p_unknown", "p_known")}
+AGS_DEFAULTS = {k: v for k, v in DEFAULTS.items()
+                if k not in ("lambda", "gamma_cells", "p_unknown", "p_known")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,7 +134,8 @@ def validate(weights, params, ctx):
       raise ConfigError(f"ahmed: {name} must be > 0, got {w[name]}")
   if np.any(w["odom_cov_xy"] ** 2 >= w["odom_var_xy"] ** 2):
     raise ConfigError("ahmed: the hallucinated odometry covariance must be positive definite "
-                      f"(|odom_cov_xy| < odom_var_xy), got {w['odom_cov_xy']} and {w['odom_var_xy']}")
+                      f"(|odom_cov_xy| < odom_var_xy), got {w['odom_cov_xy']} and "
+                      f"{w['odom_var_xy']}")
 
 
 def _weights(params) -> dict:
@@ -155,11 +157,13 @@ def tile_clusters(frontier, tile: int, max_clusters: int) -> labels.Clusters:
     return jax.ops.segment_sum(values.ravel(), segment, num_segments=n_tiles + 1)[:n_tiles]
 
   size = per_tile(jnp.ones((height, width), jnp.int32))
-  sums = jnp.stack([per_tile(rows.astype(jnp.float32)), per_tile(cols.astype(jnp.float32))], axis=-1)
+  sums = jnp.stack([per_tile(rows.astype(jnp.float32)), per_tile(cols.astype(jnp.float32))],
+                   axis=-1)
   k = min(max_clusters, n_tiles)
   top, chosen = jax.lax.top_k(size, k)
   valid = top > 0
-  centroid = jnp.where(valid[:, None], sums[chosen] / jnp.maximum(top, 1)[:, None].astype(jnp.float32), 0.0)
+  mean = sums[chosen] / jnp.maximum(top, 1)[:, None].astype(jnp.float32)
+  centroid = jnp.where(valid[:, None], mean, 0.0)
   slot = jnp.full((n_tiles + 1,), -1, jnp.int32).at[chosen].set(
       jnp.where(valid, jnp.arange(k, dtype=jnp.int32), -1))
   ids = jnp.where(frontier, slot[tile_id], -1)
@@ -186,7 +190,8 @@ def line_cells(start, end, n_max: int):
   row_moves = jnp.floor(s.astype(jnp.float32) * steps[0].astype(jnp.float32)
                         / jnp.maximum(total, 1).astype(jnp.float32) + 0.5).astype(jnp.int32)
   col_moves = s - row_moves
-  cells = start[None, :] + jnp.stack([jnp.sign(d[0]) * row_moves, jnp.sign(d[1]) * col_moves], axis=-1)
+  moves = jnp.stack([jnp.sign(d[0]) * row_moves, jnp.sign(d[1]) * col_moves], axis=-1)
+  cells = start[None, :] + moves
   return cells, total + 1
 
 
@@ -272,7 +277,8 @@ def candidate_logdet(c: _Context, node_cells, node_valid):
   prev = jnp.concatenate([graph.poses[last, :2][None, :], xy[:-1]], axis=0)
   theta = jnp.arctan2(xy[:, 1] - prev[:, 1], xy[:, 0] - prev[:, 0])
   radius_cells = w["info_radius"] / c.res
-  n_cells, counts = jax.vmap(lambda cell: disc_counts(c.masks, cell, radius_cells, c.window))(node_cells)
+  n_cells, counts = jax.vmap(
+      lambda cell: disc_counts(c.masks, cell, radius_cells, c.window))(node_cells)
   n_cells = jnp.maximum(n_cells, 1).astype(jnp.float32)
   unknown_frac = counts[:, 0] / n_cells
   occupied_frac = counts[:, 1] / n_cells
@@ -290,7 +296,8 @@ def candidate_logdet(c: _Context, node_cells, node_valid):
         & (overlap > w["halluc_overlap"]))
   score = jnp.where(ok, dist, jnp.inf)
   loop_to = jnp.argmin(score, axis=-1).astype(jnp.int32)
-  closes = node_valid & jnp.isfinite(jnp.min(score, axis=-1)) & (occupied_frac > w["halluc_structure"])
+  closes = (node_valid & jnp.isfinite(jnp.min(score, axis=-1))
+            & (occupied_frac > w["halluc_structure"]))
   loop_diff = (node_id - loop_to).astype(jnp.float32) / (node_id + 1).astype(jnp.float32)
   loop_w = jnp.where(closes, c.sm_info * w["lc_scale"] * loop_diff * occupied_frac, 0.0)
   logdet = posegraph.extended_logdet(graph, c.parts, new_w, node_valid, loop_to, loop_w)
@@ -339,7 +346,8 @@ def score_candidates(ctx, view: base.BeliefView, robot: base.RobotView, params, 
   # D-optimality of ODOM_COV⁻¹ / 2: each eigenvalue halves.
   odom_dopt = 0.5 * posegraph.d_optimality_of_covariance(odom_cov)
   sm_info = 1.0 / params.scan_match_sigma ** 2
-  c = _Context(graph, posegraph.logdet_parts(graph), odom_dopt, sm_info, masks, window, res, robot, w)
+  c = _Context(graph, posegraph.logdet_parts(graph), odom_dopt, sm_info, masks, window, res,
+               robot, w)
   n_new = settings.max_new_nodes - 1
   keys = jax.random.split(key, settings.max_candidates)
 
@@ -349,7 +357,8 @@ def score_candidates(ctx, view: base.BeliefView, robot: base.RobotView, params, 
     index, valid = hallucinated_nodes(path, length, n_new, count, w["even"] > 0.5, k)
     # Path nodes first (a valid prefix), then the node at the candidate.
     on_path = jnp.concatenate([valid, jnp.array([False])])
-    node_cells = jnp.where(on_path[:, None], path[jnp.concatenate([index, index[-1:]])], goal[None, :])
+    on_cells = path[jnp.concatenate([index, index[-1:]])]
+    node_cells = jnp.where(on_path[:, None], on_cells, goal[None, :])
     node_valid = jnp.arange(n_new + 1) <= jnp.sum(valid)
     return candidate_logdet(c, node_cells, node_valid)
 
@@ -369,10 +378,11 @@ def score_candidates(ctx, view: base.BeliefView, robot: base.RobotView, params, 
   return found, keep, utility, dist, pred, {"u1": u1, "entropy": entropy}
 
 
-def plan_graph(ctx, view, robot, params, key, graph, settings: Settings, with_entropy: bool) -> base.Plan:
+def plan_graph(ctx, view, robot, params, key, graph, settings: Settings,
+               with_entropy: bool) -> base.Plan:
   """The plan to the candidate of largest utility; no plan without a valid candidate."""
-  found, keep, utility, dist, pred, _ = score_candidates(ctx, view, robot, params, key, graph, settings,
-                                                         with_entropy)
+  found, keep, utility, dist, pred, _ = score_candidates(ctx, view, robot, params, key, graph,
+                                                         settings, with_entropy)
   best = jnp.argmax(utility)
   valid = jnp.isfinite(utility[best])
   goal = found.goal[best]
@@ -384,19 +394,23 @@ def plan_graph(ctx, view, robot, params, key, graph, settings: Settings, with_en
                    n_candidates=jnp.sum(keep).astype(jnp.int32))
 
 
-SUMMARY_AHMED = "Ahmed et al. 2024 Eq 9: frontier of largest U1 (hallucinated spanning trees) + path entropy + γ"
-SUMMARY_AGS = "Placed & Castellanos' AGS: frontier of largest U1 (hallucinated pose graph's spanning trees)"
+SUMMARY_AHMED = ("Ahmed et al. 2024 Eq 9: frontier of largest U1 (hallucinated spanning trees) "
+                 "+ path entropy + γ")
+SUMMARY_AGS = ("Placed & Castellanos' AGS: frontier of largest U1 (hallucinated pose graph's "
+               "spanning trees)")
 
 
-@base.register("ahmed", defaults=DEFAULTS, summary=SUMMARY_AHMED, settings=Settings(), validate=validate,
-               needs_pose_graph=True, commits=True)
+@base.register("ahmed", defaults=DEFAULTS, summary=SUMMARY_AHMED, settings=Settings(),
+               validate=validate, needs_pose_graph=True, commits=True)
 def plan_ahmed(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Eq 9: ``U = U1 + (1 − E/K)·ρ + γ``, largest wins (see the module docstring)."""
-  return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings, with_entropy=True)
+  return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings,
+                    with_entropy=True)
 
 
-@base.register("ags", defaults=AGS_DEFAULTS, summary=SUMMARY_AGS, settings=Settings(), validate=validate,
-               needs_pose_graph=True, commits=True)
+@base.register("ags", defaults=AGS_DEFAULTS, summary=SUMMARY_AGS, settings=Settings(),
+               validate=validate, needs_pose_graph=True, commits=True)
 def plan_ags(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """AGS: ``U = U1`` (Eq 8), largest wins; ahmed's candidates and hallucination."""
-  return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings, with_entropy=False)
+  return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings,
+                    with_entropy=False)

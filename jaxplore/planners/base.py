@@ -233,7 +233,8 @@ _REGISTRY: dict[str, PlannerSpec] = {}
 
 def register(name: str, defaults: dict | None = None, summary: str = "", *, settings=None,
              validate: Callable | None = None, needs_entropy_map: bool = False,
-             needs_pose_graph: bool = False, init_memory: Callable | None = None, commits: bool = False,
+             needs_pose_graph: bool = False, init_memory: Callable | None = None,
+             commits: bool = False,
              step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
              windowed: bool = False):
   """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`)."""

@@ -116,9 +116,10 @@ def test_tile_clusters_group_frontier_cells_by_square():
 
 def test_u1_and_digit_weight():
   n = jnp.int32(37)
-  np.testing.assert_allclose(float(ahmed.u1_from_logdet(jnp.float32(120.0), n)), 37 ** (1 / 37) * math.exp(120 / 37),
-                             rtol=1e-6)
-  for u1, rho in [(0.4, 10.0), (1.0, 10.0), (9.99, 10.0), (57.0, 100.0), (3086.4, 1e4), (12345.0, 1e5)]:
+  np.testing.assert_allclose(float(ahmed.u1_from_logdet(jnp.float32(120.0), n)),
+                             37 ** (1 / 37) * math.exp(120 / 37), rtol=1e-6)
+  for u1, rho in [(0.4, 10.0), (1.0, 10.0), (9.99, 10.0), (57.0, 100.0), (3086.4, 1e4),
+                  (12345.0, 1e5)]:
     assert float(ahmed.digits_weight(jnp.float32(u1))) == pytest.approx(rho)
 
 
@@ -150,12 +151,14 @@ def world_and_graph():
   loops[:3] = [[10, 29], [5, 34], [2, 37]]
   loop_w = np.zeros(8, np.float32)
   loop_w[:3] = 3086.4
-  graph = graph.replace(poses=jnp.asarray(poses), chain_w=jnp.asarray(chain_w), loops=jnp.asarray(loops),
-                        loop_w=jnp.asarray(loop_w), n_nodes=jnp.int32(n), n_loops=jnp.int32(3))
+  graph = graph.replace(poses=jnp.asarray(poses), chain_w=jnp.asarray(chain_w),
+                        loops=jnp.asarray(loops), loop_w=jnp.asarray(loop_w), n_nodes=jnp.int32(n),
+                        n_loops=jnp.int32(3))
   return unknown, occupied, graph
 
 
-def numpy_hallucinated_u1(graph, unknown, occupied, node_cells, robot_pose, robot_cell, w, sm_sigma):
+def numpy_hallucinated_u1(graph, unknown, occupied, node_cells, robot_pose, robot_cell, w,
+                          sm_sigma):
   """The authors' hallucination rules read plainly, the whole graph rebuilt, U1 by slogdet."""
   n = int(graph.n_nodes)
   poses = np.asarray(graph.poses, np.float64)
@@ -165,7 +168,8 @@ def numpy_hallucinated_u1(graph, unknown, occupied, node_cells, robot_pose, robo
     g.add_edge(k - 1, k, weight=float(graph.chain_w[k]))
   for (a, b), lw in zip(np.asarray(graph.loops)[: int(graph.n_loops)], np.asarray(graph.loop_w)):
     g.add_edge(int(a), int(b), weight=float(lw))
-  odom_cov = np.array([[w["odom_var_xy"], w["odom_cov_xy"], 0], [w["odom_cov_xy"], w["odom_var_xy"], 0],
+  odom_cov = np.array([[w["odom_var_xy"], w["odom_cov_xy"], 0],
+                       [w["odom_cov_xy"], w["odom_var_xy"], 0],
                        [0, 0, w["odom_var_theta"]]])
   fim = np.linalg.inv(odom_cov) / 2
   dopt = np.exp(np.mean(np.log(np.linalg.eigvalsh(fim))))
@@ -214,7 +218,8 @@ def test_hallucinated_u1_equals_u1_of_the_rebuilt_graph(transform):
     parts = posegraph.logdet_parts(graph)
     odom_cov = jnp.array([[0.04, 0.001, 0.0], [0.001, 0.04, 0.0], [0.0, 0.0, 0.008]])
     c = ahmed._Context(graph, parts, 0.5 * posegraph.d_optimality_of_covariance(odom_cov),
-                       1.0 / params.scan_match_sigma**2, masks, 20, RES, robot, ahmed._weights(params))
+                       1.0 / params.scan_match_sigma**2, masks, 20, RES, robot,
+                       ahmed._weights(params))
     logdet, n = ahmed.candidate_logdet(c, node_cells, node_valid)
     return ahmed.u1_from_logdet(logdet, n)
 
@@ -232,11 +237,12 @@ def test_hallucinated_u1_equals_u1_of_the_rebuilt_graph(transform):
     padded[: len(cells)] = cells
     valid = np.arange(6) < len(cells)
     got = float(fn(jnp.asarray(padded), jnp.asarray(valid)))
-    want, closed = numpy_hallucinated_u1(graph, unknown, occupied, cells, np.asarray(robot.pose), (8, 10),
-                                         w, float(params.scan_match_sigma))
+    want, closed = numpy_hallucinated_u1(graph, unknown, occupied, cells, np.asarray(robot.pose),
+                                         (8, 10), w, float(params.scan_match_sigma))
     np.testing.assert_allclose(got, want, rtol=2e-4)
     loops.append(closed)
-  assert min(loops) == 0 and max(loops) >= 2, loops  # both the pendant-only and the low-rank paths ran
+  # Both the pendant-only and the low-rank paths ran.
+  assert min(loops) == 0 and max(loops) >= 2, loops
 
 
 # --- whole utility (Eq 9) ------------------------------------------------------------------------
@@ -260,12 +266,13 @@ def test_candidates_filters_and_eq_9_from_their_parts():
   robot = base.RobotView(pose=jnp.asarray([0.65, 0.55, 0.0]), cell=jnp.asarray([5, 6], jnp.int32),
                          cov=jnp.eye(3))
   graph = posegraph.init(robot.pose, 16, 4)
-  view = base.BeliefView(logodds=jnp.asarray(logodds), entropy_map=None, free=free, occupied=occ, unknown=unk,
-                         inflated=inflated, traversable=free & ~inflated,
-                         frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros((h, w), bool),
-                         pose_graph=graph)
+  view = base.BeliefView(logodds=jnp.asarray(logodds), entropy_map=None, free=free, occupied=occ,
+                         unknown=unk, inflated=inflated, traversable=free & ~inflated,
+                         frontier=mapping.frontier(free, unk, occ),
+                         blacklist=jnp.zeros((h, w), bool), pose_graph=graph)
   settings = ahmed.Settings(max_candidates=16, max_new_nodes=4, halluc_path_cells=128)
-  ctx = PlannerContext(height=h, width=w, res=0.1, path_capacity=64, max_inflation_cells=1, settings=settings)
+  ctx = PlannerContext(height=h, width=w, res=0.1, path_capacity=64, max_inflation_cells=1,
+                       settings=settings)
   found, keep, utility, _, _, parts = jax.jit(
       lambda v, r, p, k, g: ahmed.score_candidates(ctx, v, r, p, k, g, settings, True))(
           view, robot, params, jax.random.PRNGKey(0), graph)
@@ -278,12 +285,14 @@ def test_candidates_filters_and_eq_9_from_their_parts():
     disc = (r - goal[0]) ** 2 + (c - goal[1]) ** 2 <= 10.0**2
     unknown_area = (np.asarray(unk) & disc).sum() * 0.01
     dist = math.hypot(*(goal - np.array([5, 6]))) * 0.1
-    want_keep = (not np.asarray(inflated)[goal[0], goal[1]]) and unknown_area >= 0.45 and dist >= 0.25
+    want_keep = (not np.asarray(inflated)[goal[0], goal[1]] and unknown_area >= 0.45
+                 and dist >= 0.25)
     assert keep[k] == want_keep
     if not keep[k]:
       assert utility[k] == -np.inf
       continue
     cells = greedy_line((5, 6), tuple(goal))
-    e = np.mean([entropy_bits(0.1) if np.asarray(unk)[i, j] else entropy_bits(0.45) for i, j in cells])
+    e = np.mean([entropy_bits(0.1) if np.asarray(unk)[i, j] else entropy_bits(0.45)
+                 for i, j in cells])
     rho = 10.0 ** (math.floor(math.log10(u1[k])) + 1 if u1[k] >= 1 else 1)
     np.testing.assert_allclose(utility[k], u1[k] + (1 - e) * rho + math.exp(-0.6 * dist), rtol=1e-5)
