@@ -58,11 +58,13 @@ GRAPHS = [(12, 0), (12, 3), (17, 5), (24, 8), (2, 0)]
 
 
 def cases(transform, all_cases):
-  """Every case compiled; the first two eagerly (eager dispatch dominates the time)."""
-  return all_cases if transform is jax.jit else all_cases[:2]
+  """Every case compiled; the first eagerly (eager dispatch dominates the time)."""
+  return all_cases if transform is jax.jit else all_cases[:1]
 
 
-@EAGER_AND_JIT
+# Compiled only: the structured log-det below also runs eagerly, and eager Cholesky and
+# eigensolver calls cost seconds of one-off compiles each.
+@pytest.mark.parametrize("transform", [jax.jit], ids=["jit"])
 def test_dense_logdet_matches_slogdet_and_spanning_tree_count(transform):
   rng = np.random.default_rng(0)
   for n, m in cases(transform, GRAPHS):
@@ -89,7 +91,7 @@ def test_structured_logdet_matches_dense(transform):
     np.testing.assert_allclose(np.asarray(resistance)[:n], want, rtol=1e-5)
 
 
-@EAGER_AND_JIT
+@pytest.mark.parametrize("transform", [jax.jit], ids=["jit"])
 def test_extended_logdet_matches_the_rebuilt_graph(transform):
   """A pendant chain of new nodes with loop closures: the low-rank update equals the log-det of
   the whole extended graph rebuilt from scratch."""

@@ -56,6 +56,7 @@ Plan fields: ``gain`` = the chosen candidate's U; ``cost`` = its path cost (m); 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -89,7 +90,7 @@ DEFAULTS = {
     "min_unknown_area": 0.45,  # m² of unknown cells within filter_radius
     "min_robot_dist": 0.25,  # m
 }
-# AGS has no path entropy and no distance decay.
+# AGS has no path entropy and no distance decay: it never reads their weights.
 AGS_DEFAULTS = {k: v for k, v in DEFAULTS.items()
                 if k not in ("lambda", "gamma_cells", "p_unknown", "p_known")}
 
@@ -139,7 +140,10 @@ def validate(weights, params, ctx):
 
 
 def _weights(params) -> dict:
-  return {name: params.planner.get(name, value) for name, value in DEFAULTS.items()}
+  """Every weight of :data:`DEFAULTS` as an f32 leaf (AGS's missing ones at their defaults), so
+  both planners hand the same pytree to :func:`_plan`."""
+  return {name: jnp.asarray(params.planner.get(name, value), jnp.float32)
+          for name, value in DEFAULTS.items()}
 
 
 def tile_clusters(frontier, tile: int, max_clusters: int) -> labels.Clusters:
@@ -317,12 +321,18 @@ def digits_weight(u1):
 
 
 def score_candidates(ctx, view: base.BeliefView, robot: base.RobotView, params, key,
-                     graph: posegraph.PoseGraph, settings: Settings, with_entropy: bool):
-  """Every candidate's utility (Eq 9 for ``ahmed``, U1 alone for ``ags``).
+                     graph: posegraph.PoseGraph, settings: Settings, with_entropy):
+  """Every candidate's utility (Eq 9 for ``ahmed``, U1 alone for ``ags``; ``with_entropy`` may
+  be traced).
 
-  Returns (candidates, utility f32[K] (−inf where invalid), dist f32[H, W], pred, parts of U).
+  Returns (candidates, keep bool[K], utility f32[K] (−inf where not kept), dist f32[H, W], pred,
+  parts of U).
   """
-  w = _weights(params)
+  return _score(ctx, view, robot, _weights(params), params.scan_match_sigma, key, graph, settings,
+                with_entropy)
+
+
+def _score(ctx, view, robot, w, scan_match_sigma, key, graph, settings, with_entropy):
   res = ctx.res
   node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
   dist, pred = reachable_paths(ctx, view, robot, node_cost)
@@ -345,7 +355,7 @@ def score_candidates(ctx, view: base.BeliefView, robot: base.RobotView, params, 
                         [0.0, 0.0, w["odom_var_theta"]]], jnp.float32)
   # D-optimality of ODOM_COV⁻¹ / 2: each eigenvalue halves.
   odom_dopt = 0.5 * posegraph.d_optimality_of_covariance(odom_cov)
-  sm_info = 1.0 / params.scan_match_sigma ** 2
+  sm_info = 1.0 / scan_match_sigma ** 2
   c = _Context(graph, posegraph.logdet_parts(graph), odom_dopt, sm_info, masks, window, res,
                robot, w)
   n_new = settings.max_new_nodes - 1
@@ -365,33 +375,43 @@ def score_candidates(ctx, view: base.BeliefView, robot: base.RobotView, params, 
   path_m = dist[found.goal[:, 0], found.goal[:, 1]]
   logdet, n_nodes = jax.vmap(one)(found.goal, jnp.where(keep, path_m, 0.0), keys)
   u1 = u1_from_logdet(logdet, n_nodes)
-  utility = u1
-  entropy = jnp.zeros_like(u1)
-  if with_entropy:
-    n_max = ctx.height + ctx.width
-    entropy = jax.vmap(lambda goal: path_entropy(view.unknown, robot.cell, goal, w["p_unknown"],
-                                                  w["p_known"], n_max))(found.goal)
-    d = jnp.where(w["gamma_cells"] > 0.5, found.distance / res, found.distance)
-    gamma = jnp.exp(-w["lambda"] * d)
-    utility = u1 + (1.0 - entropy) * digits_weight(u1) + gamma
+  n_max = ctx.height + ctx.width
+  entropy = jax.vmap(lambda goal: path_entropy(view.unknown, robot.cell, goal, w["p_unknown"],
+                                                w["p_known"], n_max))(found.goal)
+  d = jnp.where(w["gamma_cells"] > 0.5, found.distance / res, found.distance)
+  gamma = jnp.exp(-w["lambda"] * d)
+  utility = jnp.where(with_entropy, u1 + (1.0 - entropy) * digits_weight(u1) + gamma, u1)
   utility = jnp.where(keep, utility, -jnp.inf)
   return found, keep, utility, dist, pred, {"u1": u1, "entropy": entropy}
 
 
 def plan_graph(ctx, view, robot, params, key, graph, settings: Settings,
-               with_entropy: bool) -> base.Plan:
+               with_entropy) -> base.Plan:
   """The plan to the candidate of largest utility; no plan without a valid candidate."""
-  found, keep, utility, dist, pred, _ = score_candidates(ctx, view, robot, params, key, graph,
-                                                         settings, with_entropy)
+  return plan_and_scores(ctx, view, robot, params, key, graph, settings, with_entropy)[0]
+
+
+def plan_and_scores(ctx, view, robot, params, key, graph, settings: Settings, with_entropy):
+  """(Plan, candidates, keep, utility, U1, E/K): the plan and what it was chosen from."""
+  return _plan(ctx, view, robot, _weights(params), params.scan_match_sigma, key, graph,
+               jnp.asarray(with_entropy), settings)
+
+
+# One compiled program for both planners when called eagerly (inlined under an outer jit).
+@functools.partial(jax.jit, static_argnames=("ctx", "settings"))
+def _plan(ctx, view, robot, w, scan_match_sigma, key, graph, with_entropy, settings):
+  found, keep, utility, dist, pred, parts = _score(ctx, view, robot, w, scan_match_sigma, key,
+                                                   graph, settings, with_entropy)
   best = jnp.argmax(utility)
   valid = jnp.isfinite(utility[best])
   goal = found.goal[best]
   cells, length, _ = plan_to(ctx, view, robot, pred, goal, valid)
   look_at = base.unknown_neighbour(found.look_at[best], view.unknown, view.occupied)
-  return base.Plan(waypoints=cells, length=length, goal=goal, look_at=look_at, valid=valid,
+  plan = base.Plan(waypoints=cells, length=length, goal=goal, look_at=look_at, valid=valid,
                    gain=jnp.where(valid, utility[best], 0.0).astype(jnp.float32),
                    cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),
                    n_candidates=jnp.sum(keep).astype(jnp.int32))
+  return plan, found, keep, utility, parts["u1"], parts["entropy"]
 
 
 SUMMARY_AHMED = ("Ahmed et al. 2024 Eq 9: frontier of largest U1 (hallucinated spanning trees) "

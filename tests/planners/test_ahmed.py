@@ -250,35 +250,37 @@ def test_hallucinated_u1_equals_u1_of_the_rebuilt_graph(transform):
 
 def test_candidates_filters_and_eq_9_from_their_parts():
   """Every candidate's utility is U1 + (1 − E/K)·10^β + exp(−λ·d), with E/K the NumPy path
-  entropy of its line; the filters of the authors' code hold for every kept candidate."""
+  entropy of its line; the filters of the authors' code hold for every candidate; the plan goes
+  to the best one. (The grid, context and settings are the conformance test's, so both share
+  one compiled planner.)"""
   from jaxplore import mapping
   from jaxplore.planners.base import PlannerContext
-  h, w = 26, 34
+  h, w = 24, 32
   state = np.full((h, w), 2)  # 0 free, 1 occupied, 2 unknown
   state[2:20, 2:22] = 0
   state[2:20, 2] = state[2, 2:22] = state[19, 2:22] = 1
   state[8:12, 10:14] = 2  # an unknown pocket inside the known room
   state[14, 5:12] = 1
   logodds = np.where(state == 0, -3.0, np.where(state == 1, 3.0, 0.0)).astype(np.float32)
-  params = make_params(r_robot=0.1, planner=W_AHMED)
+  params = make_params(res=0.1, r_robot=0.15, r_max=2.0, planner=W_AHMED)
   free, occ, unk = mapping.classify(jnp.asarray(logodds), params)
-  inflated = mapping.inflate(occ, 1.0, 1)
+  inflated = mapping.inflate(occ, 1.5, 2)
   robot = base.RobotView(pose=jnp.asarray([0.65, 0.55, 0.0]), cell=jnp.asarray([5, 6], jnp.int32),
                          cov=jnp.eye(3))
-  graph = posegraph.init(robot.pose, 16, 4)
+  graph = posegraph.init(robot.pose, 16, 8)
   view = base.BeliefView(logodds=jnp.asarray(logodds), entropy_map=None, free=free, occupied=occ,
                          unknown=unk, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ),
                          blacklist=jnp.zeros((h, w), bool), pose_graph=graph)
-  settings = ahmed.Settings(max_candidates=16, max_new_nodes=4, halluc_path_cells=128)
-  ctx = PlannerContext(height=h, width=w, res=0.1, path_capacity=64, max_inflation_cells=1,
-                       settings=settings)
-  found, keep, utility, _, _, parts = jax.jit(
-      lambda v, r, p, k, g: ahmed.score_candidates(ctx, v, r, p, k, g, settings, True))(
-          view, robot, params, jax.random.PRNGKey(0), graph)
-  found, keep, utility = jax.tree.map(np.asarray, (found, keep, utility))
-  u1 = np.asarray(parts["u1"])
+  settings = ahmed.Settings()
+  ctx = PlannerContext(height=h, width=w, res=0.1, path_capacity=64, max_inflation_cells=2,
+                       max_steps=400, settings=settings)
+  plan, found, keep, utility, u1, _ = jax.tree.map(np.asarray, ahmed.plan_and_scores(
+      ctx, view, robot, params, jax.random.PRNGKey(0), graph, settings, True))
   assert keep.sum() >= 3
+  best = int(np.argmax(utility))
+  assert plan.valid and np.all(plan.goal == found.goal[best])
+  np.testing.assert_allclose(plan.gain, utility[best], rtol=1e-6)
   r, c = np.mgrid[:h, :w]
   for k in np.nonzero(found.valid)[0]:
     goal = found.goal[k]
