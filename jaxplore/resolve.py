@@ -155,9 +155,17 @@ def _one_value(name: str, value):
 def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
   """(traced weights, static settings) of ``planner_params`` for ``planner``: every name must be
   one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
-  weights, settings = get_planner(planner).split_overrides(planner_params)
-  weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v for k, v in weights.items()}
-  return weights, {k: _one_value(k, v) for k, v in settings.items()}
+  spec = get_planner(planner)
+  weights, settings = spec.split_overrides(planner_params)
+  weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v
+             for k, v in weights.items()}
+  settings = {k: _one_value(k, v) for k, v in settings.items()}
+  for name, value in settings.items():
+    default = getattr(spec.settings, name)
+    if (isinstance(default, int) and not isinstance(default, bool) and isinstance(value, float)
+        and not value.is_integer()):
+      raise ConfigError(f"planner {planner!r}: setting {name} must be an integer, got {value!r}")
+  return weights, settings
 
 
 def split_params(params) -> tuple[dict, dict]:
@@ -222,5 +230,5 @@ def resolve(spec: RunSpec) -> Resolved:
   return Resolved(spec, grid, config, params, world, spec.start)
 
 
-__all__ = ["Batch", "Resolved", "build_params", "config_difference", "default_max_steps", "load_grid", "resolve",
-           "split_params", "split_planner_params", "to_json_number"]
+__all__ = ["Batch", "Resolved", "build_params", "config_difference", "default_max_steps",
+           "load_grid", "resolve", "split_params", "split_planner_params", "to_json_number"]

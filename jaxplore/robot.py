@@ -1,9 +1,10 @@
 """One robot: its state, its reset and its motion step (single-robot pure functions).
 
 The engine batches these with ``vmap`` at the edge. One motion step (:func:`step`): drive toward
-the next waypoint (or turn to the look-at cell), unless the robot's disc would touch an occupied
-cell of the truth (a collision: the robot stays, its path ends, and the cells it touched become
-occupied in its belief, as a bumper would tell it) -> dead-reckon the estimate and propagate Σ
+the next waypoint (or turn to the look-at cell), unless the robot's disc at that waypoint would
+touch an occupied cell of the truth that its belief does not hold as occupied (a collision: the
+robot stays, its path ends, and the cells it touched become occupied in its belief, as a bumper
+would tell it; walls it already knows are the planner's to avoid, by inflation) -> dead-reckon the estimate and propagate Σ
 (Li et al. 2020, Eq 16-17) -> scan the truth from the true pose -> relocalise if the scan ends on
 enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> update
 Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SLAM pose graph
@@ -265,15 +266,28 @@ def touched_cells(config: SimConfig, world: World, params: Params, xy):
   return cells, occupied & (distance < params.r_robot)
 
 
+def _in_belief_frame(config: SimConfig, world: World, state: State, cells):
+  """Truth cells where the robot's estimated pose puts them (shifted by its cell error)."""
+  shift = (cell_of(state.pose_est[:2], world.origin, config.res) -
+           cell_of(state.pose[:2], world.origin, config.res))
+  return cells + shift[None, :]
+
+
+def _believed_occupied(config: SimConfig, world: World, params: Params, state: State, cells):
+  """Whether the robot's belief holds each truth cell as occupied (outside the map: yes)."""
+  cells = _in_belief_frame(config, world, state, cells)
+  logodds = state.logodds.at[cells[:, 0], cells[:, 1]].get(
+      mode="fill", fill_value=jnp.inf, wrap_negative_indices=False)
+  return logodds > mapping.logit(params.p_occ)
+
+
 def _feel_collision(config: SimConfig, world: World, params: Params, state: State, cells, felt):
   """The cells the robot bumped into (``felt``) become occupied in its belief, placed where its
   estimated pose puts them. A contact is certain, unlike a scan: their log-odds go to ``l_max``
   whatever the belief held (one ``l_occ`` would leave a cell believed free still free). Map
   entropy and coverage follow."""
   h, w = config.height, config.width
-  shift = (cell_of(state.pose_est[:2], world.origin, config.res) -
-           cell_of(state.pose[:2], world.origin, config.res))
-  cells = cells + shift[None, :]
+  cells = _in_belief_frame(config, world, state, cells)
   inside = (cells[:, 0] >= 0) & (cells[:, 0] < h) & (cells[:, 1] >= 0) & (cells[:, 1] < w)
   felt = felt & inside
   rows = jnp.where(felt, cells[:, 0], h)  # row h is dropped by the scatter
@@ -309,7 +323,8 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
   drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
                               translate=has_waypoint)
-  touched, touching = touched_cells(config, world, params, drive.pose[:2])
+  touched, touching = touched_cells(config, world, params, target_xy)
+  touching = touching & ~_believed_occupied(config, world, params, state, touched)
   collided = running & has_waypoint & (drive.delta_d > 0) & jnp.any(touching)
   path_len = jnp.where(collided, state.path_idx, path_len)
   has_waypoint = has_waypoint & ~collided
