@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import sim
+from jaxplore import posegraph, sim
 from jaxplore.config import (ConfigError, Params, SimConfig, config_for, make_params,
                              validate_params)
 from jaxplore.maps import GridMap, load_world
@@ -213,6 +213,12 @@ def resolve(spec: RunSpec) -> Resolved:
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)
   max_steps = spec.max_steps if spec.max_steps is not None else default_max_steps(grid, params)
+  if spec.pose_graph or (spec.pose_graph is None and planner.needs_pose_graph):
+    # Room for every keyframe the run can create (posegraph.keyframe_bound).
+    overrides["graph_nodes"] = posegraph.keyframe_bound(max_steps, params.v_max, params.w_max,
+                                                        params.dt, params.kf_dist, params.kf_rot)
+    if spec.graph_loops is not None:
+      overrides["graph_loops"] = spec.graph_loops
   config = config_for(grid.shape, grid.res, params, preset=spec.preset, max_steps=max_steps,
                       **overrides)
   validate_params(params, config)
