@@ -19,9 +19,10 @@ import chex
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplore import posegraph
+from jaxplore.errors import ConfigError
 
-class ConfigError(ValueError):
-  """An invalid setting, with a message naming it."""
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -293,7 +294,6 @@ def validate_params(params: Params, config: SimConfig) -> None:
     max_r = config.max_loop_cells * config.res
     check("loop_radius", p.loop_radius, lambda a: a <= max_r + 1e-6,
           f"<= max_loop_cells * res = {max_r:.3g} m (raise SimConfig.max_loop_cells)")
-    from jaxplore import posegraph  # a cycle at import time: posegraph needs ConfigError
     posegraph.check_capacity(config.graph_nodes, config.max_steps, p)
   check("coverage_goal", p.coverage_goal, lambda a: a > 0, "> 0 (above 1: never complete by coverage)")
   for name, value in p.planner.items():

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import mapping, motion
-from jaxplore.config import ConfigError
+from jaxplore.errors import ConfigError
 
 # Candidates whose line of sight is checked, nearest first, when a keyframe looks for a loop.
 LOOP_CANDIDATES = 4
