@@ -382,7 +382,7 @@ class ReferenceSimulator:
     occupied: bool[H, W] truth. res: m/cell. origin: (x, y) m of cell (0, 0)'s corner.
     params: Params fields by name (floats).
     config: a SimConfig (or a mapping with its n_beams, max_range_cells, path_capacity,
-      replan_every, max_steps, max_inflation_cells and optionally pose_noise).
+      replan_every, max_steps, max_inflation_cells, r_e and optionally pose_noise).
     start_pose: (x, y, θ).
   """
 
@@ -392,6 +392,7 @@ class ReferenceSimulator:
     self.res = float(res)
     self.origin = np.asarray(origin, float)
     self.p = {k: float(v) for k, v in params.items() if not isinstance(v, Mapping)}
+    self.p.setdefault("r_e", float(settings["r_e"]))  # R_e is static config (SimConfig.r_e)
     self.n_beams = int(settings["n_beams"])
     self.n_cross = int(settings["max_range_cells"]) + 1
     self.capacity = int(settings["path_capacity"])
