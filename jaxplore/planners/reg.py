@@ -53,6 +53,11 @@ Decisions (the paper is silent; see also the module's settings):
   lies in the shadow of the corner, which no ray from the node enters, and a ray that grazes
   the corner reaches R in free space and then meets the far wall.) ``arc_rule = "lsr"`` keeps
   the paper's arcs, from the LSRs alone.
+* A step shorter than ``arrive_tol`` (an arc whose ray stops on unknown space right beside
+  the node, e.g. the sector behind the robot that its 240° lidar has not seen) is a turn in
+  place: the robot faces the arc, and the current node's LSR is cast again instead of a node
+  being added beside it. A step may not end within ``d_sep`` of another node (the same step
+  from the same arc again makes no progress).
 * A robot whose path ends away from its destination (a path cut by the path capacity, a cell
   found occupied) is sent there again up to ``retries`` times. An exploration step that still
   fails ends where the robot is: that position becomes the new node. A hop that fails removes
@@ -436,11 +441,13 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   overflow = mem.overflow | (add & (mem.count >= n))
   new = jnp.minimum(mem.count, n - 1)
   new_open = ~rays.obstacle & leads_on(K.boundary_points(seen_from, rays.rho))
-  # VERIFICATION reopens F_det, which the new LSR closes again where it covers it (step 3);
-  # after a turn in place F_det stays closed and the node's arcs can only close.
+  # VERIFICATION reopens F_det, which the new LSR closes again where it covers it (step 3).
+  # After a turn in place, F_det reopens only where the node's ray grew by a cell or more (the
+  # turn showed what lies that way), so every bin is turned to a bounded number of times.
   set_row = _set_row
   open_ = set_row(mem.open, mem.open[cur_safe] | mem.pending, cur_safe, stepped & (cur >= 0))
-  open_ = set_row(open_, mem.open[cur_safe] & new_open, cur_safe, turned)
+  grown = mem.pending & (rays.rho >= mem.rho[cur_safe] + 1.0)
+  open_ = set_row(open_, (mem.open[cur_safe] | grown) & new_open, cur_safe, turned)
   uv = set_row(mem.uv, here, new, create)
   rho = set_row(set_row(mem.rho, rays.rho, new, create), rays.rho, cur_safe, turned)
   obstacle = set_row(set_row(mem.obstacle, rays.obstacle, new, create), rays.obstacle, cur_safe,
