@@ -40,8 +40,9 @@ def test_touched_cells_are_the_occupied_cells_within_the_radius(transform):
 
 def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
   """The belief says everything is free (the gap's walls unmapped): the path runs straight
-  through the gap. The robot must stop where its disc would touch the wall, count the
-  collision, learn the touched cells as occupied, and end its path there."""
+  through the gap. The robot must stop before the waypoint where its disc would touch the wall,
+  count the collision, learn the touched cells as occupied, and end its path there; then its
+  planner sees the gap closed."""
   grid = gap_world()
   params = make_params(res=0.1, r_robot=R_ROBOT, r_max=0.3, fov=0.1)
   config = config_for(grid.shape, grid.res, params, max_steps=40, n_beams=4, path_capacity=32)
@@ -60,7 +61,10 @@ def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
     state, _ = step(state)
     xy = np.asarray(state.pose[:2])
     assert np.linalg.norm(occupied_centres - xy, axis=1).min() >= R_ROBOT - 1e-6
-  assert int(state.collisions) >= 1
+  assert int(state.collisions) == 1  # one contact taught it the wall
+  # What it learned closes the gap (rows 9-10 of the wall's column) for its planner.
+  view = sim.belief_view(config, params, state, sim.robot_view(config, world, state).cell)
+  assert not np.asarray(view.traversable)[9:11, 14:17].any()
   assert float(state.pose[0]) < 1.5 - R_ROBOT + 0.05  # it stopped before the wall
   assert int(state.path_len) < 25  # the path ended at the collision
   believed_occupied = np.asarray(state.logodds) > float(mapping.logit(params.p_occ))
