@@ -48,7 +48,7 @@ def main(argv=None):
   grid, config, params = setup("ereg")
   world = sim.make_world(grid, float(params.r_robot))
   params_b = sim.broadcast_params(params, args.robots)
-  keys = runner.robot_keys(range(args.robots))
+  keys = jax.vmap(jax.random.PRNGKey)(jnp.arange(args.robots, dtype=jnp.uint32))
   t0 = time.perf_counter()
   states = sim.reset_batch(config, world, params_b, keys)
   states, _ = sim.advance(config, world, params_b, states, args.warm_steps // config.replan_every)

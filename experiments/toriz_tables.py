@@ -183,6 +183,8 @@ def boxplot(episodes, path: Path):
 def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--seeds", type=int, default=30, help="runs per method (seeds 0..N-1)")
+  parser.add_argument("--chunk", type=int, default=10,
+                      help="robots per batched run; seeds are run (and cached) in chunks of this many")
   parser.add_argument("--maps", default=",".join(MAPS))
   parser.add_argument("--methods", default=",".join(METHODS))
   parser.add_argument("--start", choices=("random", "fixed"), default="random")
@@ -191,22 +193,26 @@ def main(argv=None):
   args = parser.parse_args(argv)
   import pandas as pd
   if args.quick:
-    args.seeds, args.maps, args.max_steps = 2, "corridors", 2500
+    args.seeds, args.chunk, args.maps, args.max_steps = 2, 2, "corridors", 2500
   tag = "toriz_quick" if args.quick else "toriz"
   if args.start == "fixed":
     tag += "_fixed"
   cache = RESULTS / f"{tag}_tables"
   parts = []
-  for map_label in args.maps.split(","):
-    for method in args.methods.split(","):
-      path = cache / f"{map_label}_{method}_s{args.seeds}_m{args.max_steps}.parquet"
-      t0 = time.perf_counter()
-      part = run_one(map_label, method, range(args.seeds), args.start, args.max_steps, path)
-      parts.append(part)
-      print(f"{map_label:20s} {method:17s} time {part.time_s.mean():7.1f} s  distance {part.distance_m.mean():6.1f} m  "
-            f"coverage {100 * part.coverage.mean():5.1f} %  explored {100 * part.explored.mean():5.1f} %  "
-            f"({', '.join(f'{k} {v}' for k, v in part.reason.value_counts().items())})  "
-            f"{time.perf_counter() - t0:.0f} s", flush=True)
+  # Seed chunks outermost: a partial run still gives every map and method its first chunks.
+  for first in range(0, args.seeds, args.chunk):
+    seeds = range(first, min(first + args.chunk, args.seeds))
+    for map_label in args.maps.split(","):
+      for method in args.methods.split(","):
+        path = cache / f"{map_label}_{method}_seeds{seeds.start}-{seeds.stop - 1}_m{args.max_steps}.parquet"
+        t0 = time.perf_counter()
+        part = run_one(map_label, method, seeds, args.start, args.max_steps, path)
+        parts.append(part)
+        print(f"{map_label:20s} {method:17s} seeds {seeds.start}-{seeds.stop - 1}: time {part.time_s.mean():7.1f} s  "
+              f"distance {part.distance_m.mean():6.1f} m  coverage {100 * part.coverage.mean():5.1f} %  "
+              f"explored {100 * part.explored.mean():5.1f} %  "
+              f"({', '.join(f'{k} {v}' for k, v in part.reason.value_counts().items())})  "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
   episodes = pd.concat(parts, ignore_index=True)
   RESULTS.mkdir(exist_ok=True)
   text = (f"Toriz & Sánchez Tables 1-3 on jaxplore: {args.seeds} runs per method, pose noise on, "

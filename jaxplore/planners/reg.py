@@ -46,13 +46,13 @@ Decisions (the paper is silent; see also the module's settings):
 
 * Perception happens at every step in jaxplore, so the belief knows more than the LSRs: an
   arc may lead into space the robot has already seen while driving. With
-  ``arc_rule = "lsr+belief"`` (default) a free bin is also closed when no frontier cell of the
+  ``belief_arcs`` (default) a free bin is also closed when no frontier cell of the
   belief (a free cell next to an unknown one) lies within ``arc_reach`` of the end of its ray;
   checked when its node is created and for every node at every decision. (Testing only the
   bin's central ray for unknown cells is not enough: at a corridor's corner the unseen part
   lies in the shadow of the corner, which no ray from the node enters, and a ray that grazes
-  the corner reaches R in free space and then meets the far wall.) ``arc_rule = "lsr"`` keeps
-  the paper's arcs, from the LSRs alone.
+  the corner reaches R in free space and then meets the far wall.) ``belief_arcs = False``
+  keeps the paper's arcs, from the LSRs alone.
 * A step shorter than ``arrive_tol`` (an arc whose ray stops on unknown space right beside
   the node, e.g. the sector behind the robot that its 240° lidar has not seen) is a turn in
   place: the robot faces the arc, and the current node's LSR is cast again instead of a node
@@ -110,26 +110,23 @@ class Settings:
     nodes: node capacity N of the exploration graph.
     bins: angular bins B of an LSR (3° at 120).
     max_radius: the largest LSR radius ``R`` allowed, m (it bounds the rays cast).
-    arc_rule: ``"lsr+belief"`` or ``"lsr"`` (see the module docstring).
-    arc_reach: under ``lsr+belief``, a free bin stays open while a frontier cell of the belief
+    belief_arcs: arcs are also closed by the belief (True), or by the LSRs alone as in the paper
+      (False); see the module docstring.
+    arc_reach: with ``belief_arcs``, a free bin stays open while a frontier cell of the belief
       lies within this many metres (rows and columns) of the end of its ray.
-    hierarchy: Extended REG's ranking of arcs: ``"turn"`` (smallest turn from the heading, ties
-      to the wider arc, then the lower bin) or ``"width"`` (widest arc first, ties to the
-      smaller turn).
+    widest_first: Extended REG's ranking of arcs (Fig 3, not in the text): False = smallest
+      turn from the heading first, ties to the wider arc, then the lower bin; True = widest arc
+      first, ties to the smaller turn.
     max_draws: static bound on SRT's ``I_max``.
   """
 
   nodes: int = 256
   bins: int = 120
   max_radius: float = 4.0
-  arc_rule: str = "lsr+belief"
+  belief_arcs: bool = True
   arc_reach: float = 0.5
-  hierarchy: str = "turn"
+  widest_first: bool = False
   max_draws: int = 64
-
-
-ARC_RULES = ("lsr+belief", "lsr")
-HIERARCHIES = ("turn", "width")
 
 
 @chex.dataclass(frozen=True)
@@ -196,10 +193,6 @@ def validate(weights, params, ctx) -> None:
     raise ConfigError(f"REG settings: nodes >= 2, bins >= 8, max_draws >= 1, max_radius > 0 and "
                       f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, max_draws={s.max_draws}, "
                       f"max_radius={s.max_radius}, arc_reach={s.arc_reach})")
-  if s.arc_rule not in ARC_RULES:
-    raise ConfigError(f"REG setting arc_rule must be one of {ARC_RULES}, got {s.arc_rule!r}")
-  if s.hierarchy not in HIERARCHIES:
-    raise ConfigError(f"REG setting hierarchy must be one of {HIERARCHIES}, got {s.hierarchy!r}")
   w = {k: np.asarray(weights.get(k, v), np.float64) for k, v in DEFAULTS.items()}
   checks = [
       ("R", np.all(w["R"] > 0), "> 0"),
@@ -278,7 +271,7 @@ def _draw(weight, u):
   return jnp.minimum(index, weight.shape[0] - 1).astype(jnp.int32)
 
 
-def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r, radius, key):
+def _arc_candidates(variant: str, widest_first: bool, runs: K.Runs, rho_c, theta, r, radius, key):
   """Per run: the approach direction φ, its F_det bins, and an order (lower = tried first).
 
   Returns (phi f32[M], fdet bool[M, B], order f32[M], eligible bool[M]).
@@ -298,7 +291,7 @@ def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r,
                                                       lo + width - 0.5 * cover))
     turn = jnp.abs(K.wrap(phi - theta))
     start = runs.start.astype(jnp.float32)
-    keys = (turn, -width, start) if hierarchy == "turn" else (-width, turn, start)
+    keys = (-width, turn, start) if widest_first else (turn, -width, start)
     # Lexicographic rank: how many valid runs come before each (start bins are distinct).
     before = jnp.zeros((width.shape[0], width.shape[0]), bool)
     for key_k in reversed(keys):
@@ -320,7 +313,7 @@ def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r,
   return phi, fdet, order, eligible
 
 
-def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radius, acceptable,
+def _select_arc(variant: str, widest_first: bool, open_c, rho_c, q_c, theta, r, radius, acceptable,
                 key, max_rounds: int):
   """Steps 3-4 of Fig 1 for the current node: the chosen direction and destination.
 
@@ -338,7 +331,7 @@ def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radi
     else:
       key, k_draw = jax.random.split(key)
     runs = K.circular_runs(open_c)
-    phi, fdet, order, eligible = _arc_candidates(variant, hierarchy, runs, rho_c, theta, r, radius,
+    phi, fdet, order, eligible = _arc_candidates(variant, widest_first, runs, rho_c, theta, r, radius,
                                                  k_draw)
     step = r * rho_c[K.bin_of(phi, bins)]
     dest = (q_c[None, None, :] + scales[None, :, None] * step[:, None, None] *
@@ -392,7 +385,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   res = ctx.res
   radius = w["R"] / res
   r = w["r"]
-  belief_arcs = s.arc_rule == "lsr+belief" and variant != "srt"
+  belief_arcs = s.belief_arcs and variant != "srt"
   n_cross = int(math.ceil(s.max_radius / res)) + 2
   classes = K.belief_classes(view.free, view.occupied)
   node_index = jnp.arange(n, dtype=jnp.int32)
@@ -487,7 +480,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     # Bridges are added for a new node only: an edge cut after a failed hop stays cut.
     adjacent = jnp.where(create, bridged, adjacent)
 
-    # The belief check of every node's arcs (lsr+belief).
+    # The belief check of every node's arcs (belief_arcs).
     if belief_arcs:
       open_ = jnp.where(decide, open_ & leads_on(ends), open_)
 
@@ -518,7 +511,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
       return standable(points) & (short | apart)
 
     found, phi, dest, fdet, open_c = _select_arc(
-        variant, s.hierarchy, jnp.where(may_explore, open_[c], False), rho[c], q_c, theta, r,
+        variant, s.widest_first, jnp.where(may_explore, open_[c], False), rho[c], q_c, theta, r,
         radius, acceptable, k_explore, bins + 1)
     open_ = _set_row(open_, open_c, c, may_explore)
     offset = dest - q_c

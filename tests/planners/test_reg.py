@@ -115,7 +115,7 @@ def arc_inputs():
 def test_random_arc_choice_differs_across_keys_and_repeats_per_key():
   open_c, rho, q = arc_inputs()
   select = jax.jit(jax.vmap(
-      lambda key: reg._select_arc("reg", "turn", open_c, rho, q, 0.0, 0.5, 20.0,
+      lambda key: reg._select_arc("reg", False, open_c, rho, q, 0.0, 0.5, 20.0,
                                   lambda p: jnp.ones(p.shape[:-1], bool), key, 121)))
   keys = jax.random.split(jax.random.PRNGKey(0), 16)
   found, phi, dest, fdet, _ = select(keys)
@@ -142,7 +142,7 @@ def test_draws_follow_their_weights():
 def test_ereg_arc_choice_is_the_smallest_turn_and_ignores_the_key():
   open_c, rho, q = arc_inputs()
   select = jax.vmap(lambda key, theta: reg._select_arc(
-      "ereg", "turn", open_c, rho, q, theta, 0.5, 20.0, lambda p: jnp.ones(p.shape[:-1], bool), key,
+      "ereg", False, open_c, rho, q, theta, 0.5, 20.0, lambda p: jnp.ones(p.shape[:-1], bool), key,
       121))
   keys = jax.random.split(jax.random.PRNGKey(1), 2)
   # Heading along bin 55's ray: the arc [50, 60) is straight ahead, chosen whatever the key.
