@@ -19,6 +19,7 @@ cells the belief holds free); ``explored`` also counts reachable cells the belie
 
 Usage:
   python experiments/toriz_tables.py --quick    # 2 robots, one map: a smoke run
+  python experiments/toriz_tables.py --no-noise # the same without pose noise
   python experiments/toriz_tables.py            # 30 robots, 3 maps, 5 methods (long: run in the background)
   python experiments/toriz_tables.py --seeds 10 --maps corridors
 
@@ -73,7 +74,8 @@ def explored_fraction(grid, logodds, params) -> "np.ndarray":
   return (known & reachable[None]).sum(axis=(1, 2)) / reachable.sum()
 
 
-def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path: Path):
+def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path: Path,
+            pose_noise: bool = True):
   """Runs one (map, method) batch, or reads it back from ``path``."""
   import numpy as np
   import pandas as pd
@@ -84,7 +86,7 @@ def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path
   world, launch = MAPS[map_label]
   t0 = time.perf_counter()
   result = jaxplore.run(world=world, planner=method, robots=len(seeds), robot_seeds=list(seeds),
-                        preset="toriz", pose_noise=True, params={"coverage_goal": 1.5},
+                        preset="toriz", pose_noise=pose_noise, params={"coverage_goal": 1.5},
                         start=launch if start == "fixed" else None, max_steps=max_steps,
                         progress=False, quiet=True)
   episodes = result.episodes.copy()
@@ -189,6 +191,7 @@ def main(argv=None):
   parser.add_argument("--methods", default=",".join(METHODS))
   parser.add_argument("--start", choices=("random", "fixed"), default="random")
   parser.add_argument("--max-steps", type=int, default=6000)
+  parser.add_argument("--no-noise", action="store_true", help="pose noise off (the estimate is the truth)")
   parser.add_argument("--quick", action="store_true", help="2 robots on corridors, 2500 steps")
   args = parser.parse_args(argv)
   import pandas as pd
@@ -197,6 +200,8 @@ def main(argv=None):
   tag = "toriz_quick" if args.quick else "toriz"
   if args.start == "fixed":
     tag += "_fixed"
+  if args.no_noise:
+    tag += "_no_noise"
   cache = RESULTS / f"{tag}_tables"
   parts = []
   # Seed chunks outermost: a partial run still gives every map and method its first chunks.
@@ -206,7 +211,7 @@ def main(argv=None):
       for method in args.methods.split(","):
         path = cache / f"{map_label}_{method}_seeds{seeds.start}-{seeds.stop - 1}_m{args.max_steps}.parquet"
         t0 = time.perf_counter()
-        part = run_one(map_label, method, seeds, args.start, args.max_steps, path)
+        part = run_one(map_label, method, seeds, args.start, args.max_steps, path, not args.no_noise)
         parts.append(part)
         print(f"{map_label:20s} {method:17s} seeds {seeds.start}-{seeds.stop - 1}: time {part.time_s.mean():7.1f} s  "
               f"distance {part.distance_m.mean():6.1f} m  coverage {100 * part.coverage.mean():5.1f} %  "
@@ -215,7 +220,8 @@ def main(argv=None):
               f"{time.perf_counter() - t0:.0f} s", flush=True)
   episodes = pd.concat(parts, ignore_index=True)
   RESULTS.mkdir(exist_ok=True)
-  text = (f"Toriz & Sánchez Tables 1-3 on jaxplore: {args.seeds} runs per method, pose noise on, "
+  text = (f"Toriz & Sánchez Tables 1-3 on jaxplore: {args.seeds} runs per method, "
+          f"pose noise {'off' if args.no_noise else 'on'}, "
           f"{args.start} starts (seed i = the same start for every method), `toriz` preset, "
           f"step budget {args.max_steps}; mean ± sample std [min, max]. "
           f"Command: python experiments/toriz_tables.py {' '.join(argv or [])}\n\n" + tables(episodes))
