@@ -56,12 +56,14 @@ def main(argv=None):
   warm_s = time.perf_counter() - t0
   nodes = np.asarray(states.memory.count)
   coverage = np.asarray(states.covered) / float(world.n_reachable)
-  print(f"warm-up {args.warm_steps} steps of ereg: {warm_s:.0f} s; nodes per robot {nodes.mean():.1f} "
-        f"(min {nodes.min()}, max {nodes.max()}); coverage {coverage.mean():.2f}", flush=True)
+  print(f"warm-up {args.warm_steps} steps of ereg: {warm_s:.0f} s; nodes per robot "
+        f"{nodes.mean():.1f} (min {nodes.min()}, max {nodes.max()}); "
+        f"coverage {coverage.mean():.2f}", flush=True)
 
   n_dev = min(args.devices, len(jax.devices()))
   rows = []
-  for planner, whole_grid in (("ereg", True), ("nearest_frontier", False), ("nearest_frontier", True)):
+  cases = (("ereg", True), ("nearest_frontier", False), ("nearest_frontier", True))
+  for planner, whole_grid in cases:
     _, config_p, params_p = setup(planner)
     if whole_grid:
       config_p = dataclasses.replace(config_p, plan_window=0)
@@ -86,18 +88,22 @@ def main(argv=None):
       times.append(time.perf_counter() - t0)
     per_round = float(np.median(times))
     rows.append((planner, window, compile_s, per_round, per_round / args.robots * 1e3))
-    print(f"{planner:17s} window {window!s:4s} compile {compile_s:6.1f} s   {per_round * 1e3:9.1f} ms per round   "
-          f"{per_round / args.robots * 1e3:7.2f} ms per plan", flush=True)
+    print(f"{planner:17s} window {window!s:4s} compile {compile_s:6.1f} s   "
+          f"{per_round * 1e3:9.1f} ms per round   {per_round / args.robots * 1e3:7.2f} ms per plan",
+          flush=True)
   base = next(r for p, w, _, r, _ in rows if p == "nearest_frontier" and w == "off")
-  table = ["| planner | plan window | compile s | ms per planning round | ms per plan | vs nearest frontier on the whole grid |",
-           "|---|---|---|---|---|---|"]
-  table += [f"| {p} | {w} | {c:.1f} | {r * 1e3:.1f} | {m:.2f} | {r / base:.2f}x |" for p, w, c, r, m in rows]
+  table = ["| planner | plan window | compile s | ms per planning round | ms per plan "
+           "| vs nearest frontier on the whole grid |", "|---|---|---|---|---|---|"]
+  table += [f"| {p} | {w} | {c:.1f} | {r * 1e3:.1f} | {m:.2f} | {r / base:.2f}x |"
+            for p, w, c, r, m in rows]
   load = " / ".join(f"{x:.2f}" for x in os.getloadavg())
-  text = (f"Planning time, {args.robots} robots on `{args.world}` (`toriz` preset), {n_dev} device(s), the same "
-          f"belief states for every planner (after {args.warm_steps} steps of `ereg`: {nodes.mean():.1f} graph nodes "
-          f"per robot on average, coverage {coverage.mean():.2f}), every robot planning (median of {args.repeats} "
-          f"timed rounds); {time.strftime('%Y-%m-%dT%H:%M:%S')}, load average at the end {load}; command: "
-          f"python experiments/bench_reg_planning.py {' '.join(argv or [])}\n\n" + "\n".join(table) + "\n")
+  text = (f"Planning time, {args.robots} robots on `{args.world}` (`toriz` preset), {n_dev} "
+          f"device(s), the same belief states for every planner (after {args.warm_steps} steps of "
+          f"`ereg`: {nodes.mean():.1f} graph nodes per robot on average, coverage "
+          f"{coverage.mean():.2f}), every robot planning (median of {args.repeats} timed rounds); "
+          f"{time.strftime('%Y-%m-%dT%H:%M:%S')}, load average at the end {load}; command: "
+          f"python experiments/bench_reg_planning.py {' '.join(argv or [])}\n\n"
+          + "\n".join(table) + "\n")
   (HERE / "results").mkdir(exist_ok=True)
   (HERE / "results" / "bench_reg_planning.md").write_text(text)
   print(text)

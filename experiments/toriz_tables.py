@@ -20,7 +20,7 @@ cells the belief holds free); ``explored`` also counts reachable cells the belie
 Usage:
   python experiments/toriz_tables.py --quick    # 2 robots, one map: a smoke run
   python experiments/toriz_tables.py --no-noise # the same without pose noise
-  python experiments/toriz_tables.py            # 30 robots, 3 maps, 5 methods (long: run in the background)
+  python experiments/toriz_tables.py            # 30 robots, 3 maps, 5 methods (hours: background)
   python experiments/toriz_tables.py --seeds 10 --maps corridors
 
 Per (map, method) episodes are cached in ``experiments/results/toriz_tables/`` (delete a file to
@@ -92,7 +92,8 @@ def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path
   episodes = result.episodes.copy()
   episodes["map"] = map_label
   episodes["method"] = method
-  episodes["explored"] = explored_fraction(result.grid, result.state.logodds, result.config["params"])
+  episodes["explored"] = explored_fraction(result.grid, result.state.logodds,
+                                           result.config["params"])
   from jaxplore.planners import reg
   memory = result.state.memory
   if not isinstance(memory, reg.Memory):
@@ -126,8 +127,8 @@ def tables(episodes) -> str:
   lines = []
   for map_label, group in episodes.groupby("map", sort=False):
     lines += [f"### {map_label}", "",
-              "| method | runs | time s | distance m | coverage % | explored % | t99 s (runs reaching 99 %) "
-              "| back at node 0 | ended |",
+              "| method | runs | time s | distance m | coverage % | explored % "
+              "| t99 s (runs reaching 99 %) | back at node 0 | ended |",
               "|---|---|---|---|---|---|---|---|---|"]
     for method in METHODS:
       e = group[group.method == method]
@@ -137,17 +138,19 @@ def tables(episodes) -> str:
       t99_text = f"{t99.mean():.1f} ({len(t99)}/{len(e)})" if len(t99) else f"- (0/{len(e)})"
       home = "-" if e.home.isna().all() else f"{int(e.home.astype(bool).sum())}/{len(e)}"
       ended = ", ".join(f"{k} {v}" for k, v in sorted(e.reason.value_counts().items()))
-      lines.append(f"| {LABELS[method]} | {len(e)} | {fmt(stats(e.time_s))} | {fmt(stats(e.distance_m))} | "
-                   f"{fmt(stats(100 * e.coverage))} | {fmt(stats(100 * e.explored))} | {t99_text} | {home} | "
-                   f"{ended} |")
+      cells = (fmt(stats(e.time_s)), fmt(stats(e.distance_m)), fmt(stats(100 * e.coverage)),
+               fmt(stats(100 * e.explored)), t99_text, home, ended)
+      lines.append(f"| {LABELS[method]} | {len(e)} | " + " | ".join(cells) + " |")
       if method in PAPER:
         p = PAPER[method]
         lines.append(f"| *paper (LIRMM)* | 30 | *{fmt(p['time'])}* | *{fmt(p['distance'])}* | "
                      f"*{fmt(p['coverage'])}* | | | | |")
     e, r = group[group.method == "ereg"], group[group.method == "reg"]
     if len(e) and len(r):
-      lines += ["", f"Extended REG vs REG: time {100 * (e.time_s.mean() / r.time_s.mean() - 1):+.0f} %, "
-                f"distance {100 * (e.distance_m.mean() / r.distance_m.mean() - 1):+.0f} %, "
+      time_change = 100 * (e.time_s.mean() / r.time_s.mean() - 1)
+      distance_change = 100 * (e.distance_m.mean() / r.distance_m.mean() - 1)
+      lines += ["", f"Extended REG vs REG: time {time_change:+.0f} %, "
+                f"distance {distance_change:+.0f} %, "
                 f"std of time {e.time_s.std():.1f} vs {r.time_s.std():.1f} s "
                 f"(paper: -25 %, -16 %, 14.2 vs 37.9 s)."]
     lines.append("")
@@ -172,8 +175,9 @@ def boxplot(episodes, path: Path):
       ax.set_xticks(range(1, len(methods) + 1))
       ax.set_xticklabels([LABELS[m].replace(" ", "\n") for m in methods], fontsize=8)
       paper = [PAPER[m][column.split("_")[0]][0] if m in PAPER else None for m in methods]
-      ax.plot([k + 1 for k, v in enumerate(paper) if v is not None], [v for v in paper if v is not None],
-              "x", color="tab:red", label="paper (LIRMM) mean")
+      marks = [(k + 1, v) for k, v in enumerate(paper) if v is not None]
+      ax.plot([k for k, _ in marks], [v for _, v in marks], "x", color="tab:red",
+              label="paper (LIRMM) mean")
       ax.set_title(f"{map_label}: {title}", fontsize=9)
       if i == 0 and j == 0:
         ax.legend(fontsize=7)
@@ -186,12 +190,13 @@ def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--seeds", type=int, default=30, help="runs per method (seeds 0..N-1)")
   parser.add_argument("--chunk", type=int, default=10,
-                      help="robots per batched run; seeds are run (and cached) in chunks of this many")
+                      help="robots per batched run; seeds run (and are cached) in such chunks")
   parser.add_argument("--maps", default=",".join(MAPS))
   parser.add_argument("--methods", default=",".join(METHODS))
   parser.add_argument("--start", choices=("random", "fixed"), default="random")
   parser.add_argument("--max-steps", type=int, default=6000)
-  parser.add_argument("--no-noise", action="store_true", help="pose noise off (the estimate is the truth)")
+  parser.add_argument("--no-noise", action="store_true",
+                      help="pose noise off (the estimate is the truth)")
   parser.add_argument("--quick", action="store_true", help="2 robots on corridors, 2500 steps")
   args = parser.parse_args(argv)
   import pandas as pd
@@ -209,12 +214,15 @@ def main(argv=None):
     seeds = range(first, min(first + args.chunk, args.seeds))
     for map_label in args.maps.split(","):
       for method in args.methods.split(","):
-        path = cache / f"{map_label}_{method}_seeds{seeds.start}-{seeds.stop - 1}_m{args.max_steps}.parquet"
+        span = f"{seeds.start}-{seeds.stop - 1}"
+        path = cache / f"{map_label}_{method}_seeds{span}_m{args.max_steps}.parquet"
         t0 = time.perf_counter()
-        part = run_one(map_label, method, seeds, args.start, args.max_steps, path, not args.no_noise)
+        part = run_one(map_label, method, seeds, args.start, args.max_steps, path,
+                       not args.no_noise)
         parts.append(part)
-        print(f"{map_label:20s} {method:17s} seeds {seeds.start}-{seeds.stop - 1}: time {part.time_s.mean():7.1f} s  "
-              f"distance {part.distance_m.mean():6.1f} m  coverage {100 * part.coverage.mean():5.1f} %  "
+        print(f"{map_label:20s} {method:17s} seeds {span}: time {part.time_s.mean():7.1f} s  "
+              f"distance {part.distance_m.mean():6.1f} m  "
+              f"coverage {100 * part.coverage.mean():5.1f} %  "
               f"explored {100 * part.explored.mean():5.1f} %  "
               f"({', '.join(f'{k} {v}' for k, v in part.reason.value_counts().items())})  "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
@@ -224,7 +232,8 @@ def main(argv=None):
           f"pose noise {'off' if args.no_noise else 'on'}, "
           f"{args.start} starts (seed i = the same start for every method), `toriz` preset, "
           f"step budget {args.max_steps}; mean ± sample std [min, max]. "
-          f"Command: python experiments/toriz_tables.py {' '.join(argv or [])}\n\n" + tables(episodes))
+          f"Command: python experiments/toriz_tables.py {' '.join(argv or [])}\n\n"
+          + tables(episodes))
   (RESULTS / f"{tag}_tables.md").write_text(text)
   boxplot(episodes, RESULTS / f"{tag}_boxplot.png")
   print(text)

@@ -256,8 +256,9 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
     frame["planned"] = ~frame["done"] & (lengths > 1)
     if isinstance(state.memory, reg.Memory):  # the REG family's exploration graph, drawn too
       memory = jax.tree.map(np.asarray, state.memory)
-      frame["graph"] = [reg.exploration_graph(jax.tree.map(lambda x, j=j: x[j], memory), sim_config.res,
-                                              np.asarray(world.origin)) for j in range(len(robots))]
+      frame["graph"] = [reg.exploration_graph(jax.tree.map(lambda x, j=j: x[j], memory),
+                                              sim_config.res, np.asarray(world.origin))
+                        for j in range(len(robots))]
     return frame
 
   state = sim.reset_batch(sim_config, world, params, keys, starts)

@@ -180,8 +180,8 @@ def init_memory(ctx, params) -> Memory:
       obstacle=jnp.zeros((n, b), bool), open=jnp.zeros((n, b), bool),
       adjacent=jnp.zeros((n, n), bool), parent=jnp.full((n,), -1, jnp.int32),
       count=jnp.int32(0), current=jnp.int32(-1), mode=jnp.int32(START),
-      pending=jnp.zeros((b,), bool), turn=jnp.bool_(False), dest=jnp.zeros((2,), jnp.float32), phi=jnp.float32(0),
-      hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False), decisions=jnp.int32(0))
+      pending=jnp.zeros((b,), bool), turn=jnp.bool_(False), dest=jnp.zeros((2,), jnp.float32),
+      phi=jnp.float32(0), hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False), decisions=jnp.int32(0))
 
 
 def validate(weights, params, ctx) -> None:
@@ -191,8 +191,9 @@ def validate(weights, params, ctx) -> None:
     raise ConfigError(f"REG planners need their Settings, got {s!r}")
   if s.nodes < 2 or s.bins < 8 or s.max_draws < 1 or not s.max_radius > 0 or not s.arc_reach >= 0:
     raise ConfigError(f"REG settings: nodes >= 2, bins >= 8, max_draws >= 1, max_radius > 0 and "
-                      f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, max_draws={s.max_draws}, "
-                      f"max_radius={s.max_radius}, arc_reach={s.arc_reach})")
+                      f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, "
+                      f"max_draws={s.max_draws}, max_radius={s.max_radius}, "
+                      f"arc_reach={s.arc_reach})")
   w = {k: np.asarray(weights.get(k, v), np.float64) for k, v in DEFAULTS.items()}
   checks = [
       ("R", np.all(w["R"] > 0), "> 0"),
@@ -331,8 +332,8 @@ def _select_arc(variant: str, widest_first: bool, open_c, rho_c, q_c, theta, r, 
     else:
       key, k_draw = jax.random.split(key)
     runs = K.circular_runs(open_c)
-    phi, fdet, order, eligible = _arc_candidates(variant, widest_first, runs, rho_c, theta, r, radius,
-                                                 k_draw)
+    phi, fdet, order, eligible = _arc_candidates(variant, widest_first, runs, rho_c, theta, r,
+                                                 radius, k_draw)
     step = r * rho_c[K.bin_of(phi, bins)]
     dest = (q_c[None, None, :] + scales[None, :, None] * step[:, None, None] *
             _unit(phi)[:, None, :])
@@ -572,7 +573,8 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
       decisions=mem.decisions + decide.astype(jnp.int32))
   plan = base.Plan(
       waypoints=cells, length=length, goal=goal, look_at=look_at.astype(jnp.int32), valid=valid,
-      gain=jnp.float32(0), cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),
+      gain=jnp.float32(0),
+      cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),
       n_candidates=jnp.sum(jnp.any(open_, axis=1) & valid_nodes).astype(jnp.int32))
   return plan, memory
 
@@ -589,8 +591,8 @@ def plan_ereg(ctx, view, robot, params, key, memory):
   return _plan("ereg", ctx, view, robot, params, key, memory)
 
 
-@base.register("reg", summary="Toriz et al.'s REG: a random arc and direction, frontier control list",
-               **_COMMON)
+@base.register("reg", **_COMMON,
+               summary="Toriz et al.'s REG: a random arc and direction, frontier control list")
 def plan_reg(ctx, view, robot, params, key, memory):
   """REG: Fig 1 with the arc and the direction in it drawn uniformly."""
   return _plan("reg", ctx, view, robot, params, key, memory)
@@ -603,8 +605,8 @@ def plan_srg(ctx, view, robot, params, key, memory):
   return _plan("srg", ctx, view, robot, params, key, memory)
 
 
-@base.register("srt", summary="SRT (Oriolo et al.): a random tree of LSRs, backtracking to the root",
-               **_COMMON)
+@base.register("srt", **_COMMON,
+               summary="SRT (Oriolo et al.): a random tree of LSRs, backtracking to the root")
 def plan_srt(ctx, view, robot, params, key, memory):
   """SRT as the Toriz introduction describes it; see the module docstring."""
   return _plan("srt", ctx, view, robot, params, key, memory)
@@ -651,6 +653,7 @@ def exploration_graph(memory, res: float, origin) -> ExplorationGraph:
       nodes=(origin + uv * res).astype(np.float32), parent=np.asarray(memory.parent)[:count],
       edges=np.stack([i, j], axis=-1).astype(np.int32),
       lsr=(origin + ends * res).astype(np.float32),
-      open=np.asarray(memory.open, bool)[:count], obstacle=np.asarray(memory.obstacle, bool)[:count],
+      open=np.asarray(memory.open, bool)[:count],
+      obstacle=np.asarray(memory.obstacle, bool)[:count],
       current=int(np.asarray(memory.current)), mode=MODES[int(np.asarray(memory.mode))],
       overflow=bool(np.asarray(memory.overflow)))
