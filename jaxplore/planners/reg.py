@@ -58,6 +58,8 @@ Decisions (the paper is silent; see also the module's settings):
   place: the robot faces the arc, and the current node's LSR is cast again instead of a node
   being added beside it. A step may not end within ``d_sep`` of another node (the same step
   from the same arc again makes no progress).
+* REG and SRG: a drawn direction none of whose steps works closes the bin it lies in, not the
+  whole F_det around it (Extended REG's ranked approach points close F_det, step 4d).
 * A robot whose path ends away from its destination (a path cut by the path capacity, a cell
   found occupied) is sent there again up to ``retries`` times. An exploration step that still
   fails ends where the robot is: that position becomes the new node. A hop that fails removes
@@ -344,7 +346,13 @@ def _select_arc(variant: str, widest_first: bool, open_c, rho_c, q_c, theta, r, 
     found = jnp.isfinite(score.ravel()[best])
     run, scale = best // len(STEP_SCALES), best % len(STEP_SCALES)
     failed = eligible & jnp.where(found, order < order[run], True)
-    closed = jnp.any(fdet & failed[:, None], axis=0) | (found & fdet[run])
+    if variant == "ereg":
+      given_up = fdet  # step 4d: a run none of whose steps works loses its F_det
+    else:
+      # A failed random draw rejects its direction only (F_det spans up to 2·arccos(r/2),
+      # about 150°, of which the drawn direction may be the one unreachable part).
+      given_up = fdet & (jnp.arange(bins)[None, :] == K.bin_of(phi, bins)[:, None])
+    closed = jnp.any(given_up & failed[:, None], axis=0) | (found & fdet[run])
     return (open_c & ~closed, key, found, phi[run], dest[run, scale], fdet[run] & found,
             rounds + 1)
 
