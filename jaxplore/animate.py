@@ -223,6 +223,7 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
   import jax
 
   from jaxplore import sim
+  from jaxplore.planners import reg
 
   recorded = curves.groupby("robot").step.max()
   steps_recorded = np.asarray([int(recorded.get(r, 0)) for r in robots])
@@ -253,6 +254,11 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
       lengths[j] = 1 + len(rest)
     frame.update(waypoints=ahead, path_len=lengths, goal=np.asarray(state.goal))
     frame["planned"] = ~frame["done"] & (lengths > 1)
+    if isinstance(state.memory, reg.Memory):  # the REG family's exploration graph, drawn too
+      memory = jax.tree.map(np.asarray, state.memory)
+      frame["graph"] = [reg.exploration_graph(jax.tree.map(lambda x, j=j: x[j], memory),
+                                              sim_config.res, np.asarray(world.origin))
+                        for j in range(len(robots))]
     return frame
 
   state = sim.reset_batch(sim_config, world, params, keys, starts)
@@ -310,6 +316,7 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
   writer_name = _writer_name(out)
   import matplotlib.pyplot as plt
   from matplotlib import animation
+  from matplotlib.collections import LineCollection, PolyCollection
 
   from jaxplore import plot, sim  # plot picks the Agg backend unless MPLBACKEND says otherwise
 
@@ -333,13 +340,19 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
     path, = ax.plot([], [], lw=1.0, ls="--", color="tab:red", label="planned path")
     goal, = ax.plot([], [], "x", ms=7, mew=2, color="tab:red", label="goal")
     robot, = ax.plot([], [], "o", ms=5, color=colour, mec="k")
+    graph = None
+    if "graph" in replay.frames[0]:
+      graph = (ax.add_collection(PolyCollection([], facecolors=(0.2, 0.5, 0.9, 0.06),
+                                                edgecolors=(0.2, 0.5, 0.9, 0.3), linewidths=0.4)),
+               ax.add_collection(LineCollection([], colors="tab:green", linewidths=0.8)),
+               ax.plot([], [], "o", ms=2.5, color="tab:green", label="exploration graph")[0])
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect("equal")
     ax.tick_params(labelsize=7)
     if j == 0:
       ax.legend(loc="upper right", fontsize=6, framealpha=0.8)
-    artists.append((ax, image, trail, path, goal, robot))
+    artists.append((ax, image, trail, path, goal, robot, graph))
   for j in range(n, nrows * ncols):
     axes[j // ncols][j % ncols].axis("off")
   title = fig.suptitle("")
@@ -348,7 +361,7 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
   def draw(frame):
     step = frame["step"]
     for j, r in enumerate(robots):
-      ax, image, trail, path, goal, robot = artists[j]
+      ax, image, trail, path, goal, robot, graph = artists[j]
       image.set_data(plot.belief_rgb(replay.occupied, frame["logodds"][j]))
       shown = min(step, int(replay.steps_recorded[j]))
       trail.set_data(replay.x[:shown, j], replay.y[:shown, j])
@@ -362,6 +375,11 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
       else:
         path.set_data([], [])
         goal.set_data([], [])
+      if graph is not None:
+        g = frame["graph"][j]
+        graph[0].set_verts(list(g.lsr))
+        graph[1].set_segments(list(g.nodes[g.edges]))
+        graph[2].set_data(g.nodes[:, 0], g.nodes[:, 1])
       status = sim.REASONS[int(frame["reason"][j])] if frame["done"][j] else "exploring"
       ax.set_title(f"robot {r}: {float(frame['time'][j]):.0f} s, coverage "
                    f"{100 * float(frame['coverage'][j]):.0f} % ({status})", fontsize=8)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -105,6 +106,21 @@ def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, lab
                     color=line.get_color(), lw=0)
 
 
+def saved_exploration_graph(run_dir, res: float, origin, robot: int = 0):
+  """Robot ``robot``'s exploration graph from a run folder's ``memory.npz`` (a planner of the
+  REG family keeps one; see :func:`jaxplore.planners.reg.exploration_graph`), or None."""
+  path = Path(run_dir) / "memory.npz"
+  if not path.is_file():
+    return None
+  with np.load(path) as saved:
+    arrays = {name: saved[name][robot] for name in saved.files}
+  from jaxplore.planners import reg
+  fields = [f.name for f in dataclasses.fields(reg.Memory)]
+  if any(name not in arrays for name in fields):
+    return None
+  return reg.exploration_graph(reg.Memory(**{name: arrays[name] for name in fields}), res, origin)
+
+
 def run_figures(run_dir) -> list[Path]:
   """Writes ``map.png``, ``entropy_distance.png`` and ``coverage_time.png`` into ``run_dir``."""
   run_dir = Path(run_dir)
@@ -115,7 +131,14 @@ def run_figures(run_dir) -> list[Path]:
   fig, ax = plt.subplots(figsize=(7, 6))
   shown = tuple(range(min(4, maps["logodds"].shape[0])))
   belief_map(ax, maps["occupied"], maps["logodds"][0], float(maps["res"]), maps["origin"], curves, shown)
-  ax.set_title("belief of robot 0 and trajectories")
+  graph = saved_exploration_graph(run_dir, float(maps["res"]), maps["origin"])
+  if graph is not None:
+    exploration_graph(ax, graph.nodes, graph.edges, graph.lsr, graph.open, graph.current)
+    ax.set_title(f"belief of robot 0, trajectories, and robot 0's exploration graph "
+                 f"({len(graph.nodes)} nodes{', capacity reached' if graph.overflow else ''})",
+                 fontsize=9)
+  else:
+    ax.set_title("belief of robot 0 and trajectories")
   written.append(_save(fig, run_dir / "map.png"))
 
   fig, ax = plt.subplots(figsize=(6, 4))

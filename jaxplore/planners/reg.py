@@ -46,13 +46,20 @@ Decisions (the paper is silent; see also the module's settings):
 
 * Perception happens at every step in jaxplore, so the belief knows more than the LSRs: an
   arc may lead into space the robot has already seen while driving. With
-  ``arc_rule = "lsr+belief"`` (default) a free bin is also closed when no frontier cell of the
+  ``belief_arcs`` (default) a free bin is also closed when no frontier cell of the
   belief (a free cell next to an unknown one) lies within ``arc_reach`` of the end of its ray;
   checked when its node is created and for every node at every decision. (Testing only the
   bin's central ray for unknown cells is not enough: at a corridor's corner the unseen part
   lies in the shadow of the corner, which no ray from the node enters, and a ray that grazes
-  the corner reaches R in free space and then meets the far wall.) ``arc_rule = "lsr"`` keeps
-  the paper's arcs, from the LSRs alone.
+  the corner reaches R in free space and then meets the far wall.) ``belief_arcs = False``
+  keeps the paper's arcs, from the LSRs alone.
+* A step shorter than ``arrive_tol`` (an arc whose ray stops on unknown space right beside
+  the node, e.g. the sector behind the robot that its 240° lidar has not seen) is a turn in
+  place: the robot faces the arc, and the current node's LSR is cast again instead of a node
+  being added beside it. A step may not end within ``d_sep`` of another node (the same step
+  from the same arc again makes no progress).
+* REG and SRG: a drawn direction none of whose steps works closes the bin it lies in, not the
+  whole F_det around it (Extended REG's ranked approach points close F_det, step 4d).
 * A robot whose path ends away from its destination (a path cut by the path capacity, a cell
   found occupied) is sent there again up to ``retries`` times. An exploration step that still
   fails ends where the robot is: that position becomes the new node. A hop that fails removes
@@ -105,26 +112,23 @@ class Settings:
     nodes: node capacity N of the exploration graph.
     bins: angular bins B of an LSR (3° at 120).
     max_radius: the largest LSR radius ``R`` allowed, m (it bounds the rays cast).
-    arc_rule: ``"lsr+belief"`` or ``"lsr"`` (see the module docstring).
-    arc_reach: under ``lsr+belief``, a free bin stays open while a frontier cell of the belief
+    belief_arcs: arcs are also closed by the belief (True), or by the LSRs alone as in the paper
+      (False); see the module docstring.
+    arc_reach: with ``belief_arcs``, a free bin stays open while a frontier cell of the belief
       lies within this many metres (rows and columns) of the end of its ray.
-    hierarchy: Extended REG's ranking of arcs: ``"turn"`` (smallest turn from the heading, ties
-      to the wider arc, then the lower bin) or ``"width"`` (widest arc first, ties to the
-      smaller turn).
+    widest_first: Extended REG's ranking of arcs (Fig 3, not in the text): False = smallest
+      turn from the heading first, ties to the wider arc, then the lower bin; True = widest arc
+      first, ties to the smaller turn.
     max_draws: static bound on SRT's ``I_max``.
   """
 
   nodes: int = 256
   bins: int = 120
   max_radius: float = 4.0
-  arc_rule: str = "lsr+belief"
+  belief_arcs: bool = True
   arc_reach: float = 0.5
-  hierarchy: str = "turn"
+  widest_first: bool = False
   max_draws: int = 64
-
-
-ARC_RULES = ("lsr+belief", "lsr")
-HIERARCHIES = ("turn", "width")
 
 
 @chex.dataclass(frozen=True)
@@ -178,8 +182,8 @@ def init_memory(ctx, params) -> Memory:
       obstacle=jnp.zeros((n, b), bool), open=jnp.zeros((n, b), bool),
       adjacent=jnp.zeros((n, n), bool), parent=jnp.full((n,), -1, jnp.int32),
       count=jnp.int32(0), current=jnp.int32(-1), mode=jnp.int32(START),
-      pending=jnp.zeros((b,), bool), turn=jnp.bool_(False), dest=jnp.zeros((2,), jnp.float32), phi=jnp.float32(0),
-      hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False), decisions=jnp.int32(0))
+      pending=jnp.zeros((b,), bool), turn=jnp.bool_(False), dest=jnp.zeros((2,), jnp.float32),
+      phi=jnp.float32(0), hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False), decisions=jnp.int32(0))
 
 
 def validate(weights, params, ctx) -> None:
@@ -189,12 +193,9 @@ def validate(weights, params, ctx) -> None:
     raise ConfigError(f"REG planners need their Settings, got {s!r}")
   if s.nodes < 2 or s.bins < 8 or s.max_draws < 1 or not s.max_radius > 0 or not s.arc_reach >= 0:
     raise ConfigError(f"REG settings: nodes >= 2, bins >= 8, max_draws >= 1, max_radius > 0 and "
-                      f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, max_draws={s.max_draws}, "
-                      f"max_radius={s.max_radius}, arc_reach={s.arc_reach})")
-  if s.arc_rule not in ARC_RULES:
-    raise ConfigError(f"REG setting arc_rule must be one of {ARC_RULES}, got {s.arc_rule!r}")
-  if s.hierarchy not in HIERARCHIES:
-    raise ConfigError(f"REG setting hierarchy must be one of {HIERARCHIES}, got {s.hierarchy!r}")
+                      f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, "
+                      f"max_draws={s.max_draws}, max_radius={s.max_radius}, "
+                      f"arc_reach={s.arc_reach})")
   w = {k: np.asarray(weights.get(k, v), np.float64) for k, v in DEFAULTS.items()}
   checks = [
       ("R", np.all(w["R"] > 0), "> 0"),
@@ -273,7 +274,7 @@ def _draw(weight, u):
   return jnp.minimum(index, weight.shape[0] - 1).astype(jnp.int32)
 
 
-def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r, radius, key):
+def _arc_candidates(variant: str, widest_first: bool, runs: K.Runs, rho_c, theta, r, radius, key):
   """Per run: the approach direction φ, its F_det bins, and an order (lower = tried first).
 
   Returns (phi f32[M], fdet bool[M, B], order f32[M], eligible bool[M]).
@@ -293,7 +294,7 @@ def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r,
                                                       lo + width - 0.5 * cover))
     turn = jnp.abs(K.wrap(phi - theta))
     start = runs.start.astype(jnp.float32)
-    keys = (turn, -width, start) if hierarchy == "turn" else (-width, turn, start)
+    keys = (-width, turn, start) if widest_first else (turn, -width, start)
     # Lexicographic rank: how many valid runs come before each (start bins are distinct).
     before = jnp.zeros((width.shape[0], width.shape[0]), bool)
     for key_k in reversed(keys):
@@ -315,7 +316,7 @@ def _arc_candidates(variant: str, hierarchy: str, runs: K.Runs, rho_c, theta, r,
   return phi, fdet, order, eligible
 
 
-def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radius, acceptable,
+def _select_arc(variant: str, widest_first: bool, open_c, rho_c, q_c, theta, r, radius, acceptable,
                 key, max_rounds: int):
   """Steps 3-4 of Fig 1 for the current node: the chosen direction and destination.
 
@@ -333,8 +334,8 @@ def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radi
     else:
       key, k_draw = jax.random.split(key)
     runs = K.circular_runs(open_c)
-    phi, fdet, order, eligible = _arc_candidates(variant, hierarchy, runs, rho_c, theta, r, radius,
-                                                 k_draw)
+    phi, fdet, order, eligible = _arc_candidates(variant, widest_first, runs, rho_c, theta, r,
+                                                 radius, k_draw)
     step = r * rho_c[K.bin_of(phi, bins)]
     dest = (q_c[None, None, :] + scales[None, :, None] * step[:, None, None] *
             _unit(phi)[:, None, :])
@@ -345,7 +346,13 @@ def _select_arc(variant: str, hierarchy: str, open_c, rho_c, q_c, theta, r, radi
     found = jnp.isfinite(score.ravel()[best])
     run, scale = best // len(STEP_SCALES), best % len(STEP_SCALES)
     failed = eligible & jnp.where(found, order < order[run], True)
-    closed = jnp.any(fdet & failed[:, None], axis=0) | (found & fdet[run])
+    if variant == "ereg":
+      given_up = fdet  # step 4d: a run none of whose steps works loses its F_det
+    else:
+      # A failed random draw rejects its direction only (F_det spans up to 2·arccos(r/2),
+      # about 150°, of which the drawn direction may be the one unreachable part).
+      given_up = fdet & (jnp.arange(bins)[None, :] == K.bin_of(phi, bins)[:, None])
+    closed = jnp.any(given_up & failed[:, None], axis=0) | (found & fdet[run])
     return (open_c & ~closed, key, found, phi[run], dest[run, scale], fdet[run] & found,
             rounds + 1)
 
@@ -387,7 +394,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   res = ctx.res
   radius = w["R"] / res
   r = w["r"]
-  belief_arcs = s.arc_rule == "lsr+belief" and variant != "srt"
+  belief_arcs = s.belief_arcs and variant != "srt"
   n_cross = int(math.ceil(s.max_radius / res)) + 2
   classes = K.belief_classes(view.free, view.occupied)
   node_index = jnp.arange(n, dtype=jnp.int32)
@@ -436,11 +443,13 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
   overflow = mem.overflow | (add & (mem.count >= n))
   new = jnp.minimum(mem.count, n - 1)
   new_open = ~rays.obstacle & leads_on(K.boundary_points(seen_from, rays.rho))
-  # VERIFICATION reopens F_det, which the new LSR closes again where it covers it (step 3);
-  # after a turn in place F_det stays closed and the node's arcs can only close.
+  # VERIFICATION reopens F_det, which the new LSR closes again where it covers it (step 3).
+  # After a turn in place, F_det reopens only where the node's ray grew by a cell or more (the
+  # turn showed what lies that way), so every bin is turned to a bounded number of times.
   set_row = _set_row
   open_ = set_row(mem.open, mem.open[cur_safe] | mem.pending, cur_safe, stepped & (cur >= 0))
-  open_ = set_row(open_, mem.open[cur_safe] & new_open, cur_safe, turned)
+  grown = mem.pending & (rays.rho >= mem.rho[cur_safe] + 1.0)
+  open_ = set_row(open_, (mem.open[cur_safe] | grown) & new_open, cur_safe, turned)
   uv = set_row(mem.uv, here, new, create)
   rho = set_row(set_row(mem.rho, rays.rho, new, create), rays.rho, cur_safe, turned)
   obstacle = set_row(set_row(mem.obstacle, rays.obstacle, new, create), rays.obstacle, cur_safe,
@@ -480,7 +489,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     # Bridges are added for a new node only: an edge cut after a failed hop stays cut.
     adjacent = jnp.where(create, bridged, adjacent)
 
-    # The belief check of every node's arcs (lsr+belief).
+    # The belief check of every node's arcs (belief_arcs).
     if belief_arcs:
       open_ = jnp.where(decide, open_ & leads_on(ends), open_)
 
@@ -511,7 +520,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
       return standable(points) & (short | apart)
 
     found, phi, dest, fdet, open_c = _select_arc(
-        variant, s.hierarchy, jnp.where(may_explore, open_[c], False), rho[c], q_c, theta, r,
+        variant, s.widest_first, jnp.where(may_explore, open_[c], False), rho[c], q_c, theta, r,
         radius, acceptable, k_explore, bins + 1)
     open_ = _set_row(open_, open_c, c, may_explore)
     offset = dest - q_c
@@ -572,7 +581,8 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
       decisions=mem.decisions + decide.astype(jnp.int32))
   plan = base.Plan(
       waypoints=cells, length=length, goal=goal, look_at=look_at.astype(jnp.int32), valid=valid,
-      gain=jnp.float32(0), cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),
+      gain=jnp.float32(0),
+      cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),
       n_candidates=jnp.sum(jnp.any(open_, axis=1) & valid_nodes).astype(jnp.int32))
   return plan, memory
 
@@ -589,8 +599,8 @@ def plan_ereg(ctx, view, robot, params, key, memory):
   return _plan("ereg", ctx, view, robot, params, key, memory)
 
 
-@base.register("reg", summary="Toriz et al.'s REG: a random arc and direction, frontier control list",
-               **_COMMON)
+@base.register("reg", **_COMMON,
+               summary="Toriz et al.'s REG: a random arc and direction, frontier control list")
 def plan_reg(ctx, view, robot, params, key, memory):
   """REG: Fig 1 with the arc and the direction in it drawn uniformly."""
   return _plan("reg", ctx, view, robot, params, key, memory)
@@ -603,8 +613,8 @@ def plan_srg(ctx, view, robot, params, key, memory):
   return _plan("srg", ctx, view, robot, params, key, memory)
 
 
-@base.register("srt", summary="SRT (Oriolo et al.): a random tree of LSRs, backtracking to the root",
-               **_COMMON)
+@base.register("srt", **_COMMON,
+               summary="SRT (Oriolo et al.): a random tree of LSRs, backtracking to the root")
 def plan_srt(ctx, view, robot, params, key, memory):
   """SRT as the Toriz introduction describes it; see the module docstring."""
   return _plan("srt", ctx, view, robot, params, key, memory)
@@ -651,6 +661,7 @@ def exploration_graph(memory, res: float, origin) -> ExplorationGraph:
       nodes=(origin + uv * res).astype(np.float32), parent=np.asarray(memory.parent)[:count],
       edges=np.stack([i, j], axis=-1).astype(np.int32),
       lsr=(origin + ends * res).astype(np.float32),
-      open=np.asarray(memory.open, bool)[:count], obstacle=np.asarray(memory.obstacle, bool)[:count],
+      open=np.asarray(memory.open, bool)[:count],
+      obstacle=np.asarray(memory.obstacle, bool)[:count],
       current=int(np.asarray(memory.current)), mode=MODES[int(np.asarray(memory.mode))],
       overflow=bool(np.asarray(memory.overflow)))

@@ -3,8 +3,8 @@
 A node of the exploration graph holds a *local safe region* (LSR): a star-shaped region around
 its position ``q``, sampled in ``B`` equal angular bins. Bin ``b`` covers the angles
 ``[-π + b·Δ, -π + (b + 1)·Δ)`` (``Δ = 2π / B``) and its central ray is at
-``φ_b = -π + (b + ½)·Δ``; ``ρ[b]`` is the distance along that ray to the first belief cell that is
-not free, capped at the LSR radius ``R``. A bin is an *obstacle* bin when its ray stops on an
+``φ_b = -π + (b + ½)·Δ``; ``ρ[b]`` is the distance along that ray to the first belief cell that
+is not free, capped at the LSR radius ``R``. A bin is an *obstacle* bin when its ray stops on an
 occupied cell before ``R``, a *free* bin when it reaches ``R`` or stops on an unknown cell.
 
 Positions are continuous cell coordinates ``(u, v)`` = (column, row) and angles are measured
@@ -176,8 +176,8 @@ def coverable_width(rho, r, radius):
   The next node sits at ``r·ρ`` from ``q`` along the arc's middle; a point of the arc at angle
   ψ from the middle is within ``R`` of it when
   ``ρ² + r²ρ² − 2rρ²·cos ψ ≤ R²``, so the covered width is
-  ``c = 2·arccos(clip(((1 + r²)ρ² − R²) / (2rρ²), −1, 1))`` (``2·arccos(r/2)`` at ``ρ = R``; the
-  whole circle when the arc lies within ``R − r·ρ`` of the next node).
+  ``c = 2·arccos(clip(((1 + r²)ρ² − R²) / (2rρ²), −1, 1))`` (``2·arccos(r/2)`` at ``ρ = R``;
+  the whole circle when the arc lies within ``R − r·ρ`` of the next node).
 
   Args:
     rho: arc radius (any unit); r: step fraction in (0, 1); radius: R (same unit as ``rho``).

@@ -20,7 +20,8 @@ from jaxplore.planners import reg_kernels as K
 RES = 0.2
 SIDE = 12.8  # m: 64 x 64 cells
 TEE = [(0.6, 9.4, 12.2, 11.4), (5.4, 0.6, 7.4, 9.4)]
-LOOP = [(0.6, 0.6, 12.2, 2.6), (0.6, 10.2, 12.2, 12.2), (0.6, 0.6, 2.6, 12.2), (10.2, 0.6, 12.2, 12.2)]
+LOOP = [(0.6, 0.6, 12.2, 2.6), (0.6, 10.2, 12.2, 12.2), (0.6, 0.6, 2.6, 12.2),
+        (10.2, 0.6, 12.2, 12.2)]
 STARTS = {"tee": (6.4, 1.6, 0.0), "loop": (1.6, 1.6, 0.0)}
 MAX_STEPS = 480
 
@@ -115,7 +116,7 @@ def arc_inputs():
 def test_random_arc_choice_differs_across_keys_and_repeats_per_key():
   open_c, rho, q = arc_inputs()
   select = jax.jit(jax.vmap(
-      lambda key: reg._select_arc("reg", "turn", open_c, rho, q, 0.0, 0.5, 20.0,
+      lambda key: reg._select_arc("reg", False, open_c, rho, q, 0.0, 0.5, 20.0,
                                   lambda p: jnp.ones(p.shape[:-1], bool), key, 121)))
   keys = jax.random.split(jax.random.PRNGKey(0), 16)
   found, phi, dest, fdet, _ = select(keys)
@@ -142,7 +143,7 @@ def test_draws_follow_their_weights():
 def test_ereg_arc_choice_is_the_smallest_turn_and_ignores_the_key():
   open_c, rho, q = arc_inputs()
   select = jax.vmap(lambda key, theta: reg._select_arc(
-      "ereg", "turn", open_c, rho, q, theta, 0.5, 20.0, lambda p: jnp.ones(p.shape[:-1], bool), key,
+      "ereg", False, open_c, rho, q, theta, 0.5, 20.0, lambda p: jnp.ones(p.shape[:-1], bool), key,
       121))
   keys = jax.random.split(jax.random.PRNGKey(1), 2)
   # Heading along bin 55's ray: the arc [50, 60) is straight ahead, chosen whatever the key.
@@ -161,7 +162,8 @@ def test_srt_draws_differ_across_keys_repeat_per_key_and_respect_d_min():
   uv = jnp.zeros((8, 2)).at[0].set(q).at[1].set(q + jnp.array([0.0, 10.0]))
   valid = jnp.arange(8) < 2
   select = jax.jit(jax.vmap(lambda key: reg._select_srt(
-      obstacle, rho, q, uv, valid, 0.5, 5.0, 30.0, lambda p: jnp.ones(p.shape[:-1], bool), key, 64)))
+      obstacle, rho, q, uv, valid, 0.5, 5.0, 30.0, lambda p: jnp.ones(p.shape[:-1], bool), key,
+      64)))
   keys = jax.random.split(jax.random.PRNGKey(2), 16)
   found, phi, dest = select(keys)
   np.testing.assert_array_equal(np.asarray(phi), np.asarray(select(keys)[1]))

@@ -103,7 +103,8 @@ def test_circular_runs_match_a_python_reading(transform):
   for mask in masks:
     got = runs_of(jnp.asarray(mask))
     count = int(got.count)
-    pairs = sorted(zip(np.asarray(got.start)[:count].tolist(), np.asarray(got.length)[:count].tolist()))
+    starts, lengths = np.asarray(got.start)[:count], np.asarray(got.length)[:count]
+    pairs = sorted(zip(starts.tolist(), lengths.tolist()))
     assert pairs == sorted(python_runs(mask.tolist()))
     assert not np.any(np.asarray(got.valid)[count:]) and np.all(np.asarray(got.length)[count:] == 0)
 
@@ -118,7 +119,8 @@ def test_coverable_width_matches_monte_carlo():
     expected = 2 * math.pi * np.mean(gap_sq <= radius**2)
     got = float(K.coverable_width(jnp.float32(rho), jnp.float32(r), jnp.float32(radius)))
     assert abs(got - expected) < 0.02, (r, radius, rho, got, expected)
-  np.testing.assert_allclose(float(K.coverable_width(4.0, 0.5, 4.0)), 2 * math.acos(0.25), rtol=1e-6)
+  np.testing.assert_allclose(float(K.coverable_width(4.0, 0.5, 4.0)), 2 * math.acos(0.25),
+                             rtol=1e-6)
 
 
 @EAGER_AND_JIT
@@ -127,7 +129,8 @@ def test_inside_lsr_matches_the_definition(transform):
   rho = rng.uniform(0.5, 6.0, BINS).astype(np.float32)
   centre = np.array([10.3, 7.9], np.float32)
   points = (centre + rng.uniform(-7, 7, (500, 2))).astype(np.float32)
-  got = np.asarray(transform(K.inside_lsr)(jnp.asarray(points), jnp.asarray(centre), jnp.asarray(rho)))
+  inside = transform(K.inside_lsr)
+  got = np.asarray(inside(jnp.asarray(points), jnp.asarray(centre), jnp.asarray(rho)))
   width = 2 * math.pi / BINS
   expected = []
   for p in points:
