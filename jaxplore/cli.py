@@ -95,6 +95,7 @@ def _spec_flags(args, extra, planners) -> dict:
   return dict(preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
               replan_every=args.replan_every, path_capacity=args.path_capacity,
               plan_window=args.plan_window, pose_noise=args.pose_noise,
+              pose_graph=args.pose_graph, graph_loops=args.graph_loops,
               rate_interval=args.rate_interval, chunk_epochs=args.chunk_epochs,
               params=params or None, planner_params=planner_params or None,
               out=args.out, devices=args.devices)
@@ -198,6 +199,11 @@ def _add_spec_flags(p):
                  "range)")
   p.add_argument("--pose-noise", action="store_true", default=None,
                  help="noisy odometry, drifting estimate")
+  p.add_argument("--pose-graph", action="store_true", default=None,
+                 help="keep each robot's SLAM pose graph and its metrics (always on for ahmed "
+                 "and ags)")
+  p.add_argument("--graph-loops", type=int, default=None, metavar="N",
+                 help="loop-closure capacity of the pose graph (default 256)")
   p.add_argument("--rate-interval", type=float, default=None,
                  help=f"metres per interval of Std(E_r) (default {RunSpec.rate_interval:g})")
   p.add_argument("--chunk-epochs", type=int, default=None,

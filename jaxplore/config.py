@@ -19,9 +19,10 @@ import chex
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplore import posegraph
+from jaxplore.errors import ConfigError
 
-class ConfigError(ValueError):
-  """An invalid setting, with a message naming it."""
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +58,12 @@ class SimConfig:
       planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
       window cannot certify the answer. 0 = always the whole grid. :func:`config_for` picks it
       from the sensor range, capped at :data:`PLAN_REACH_M` (:func:`auto_plan_window`).
+    graph_nodes: keyframe capacity of each robot's SLAM pose graph (:mod:`jaxplore.posegraph`);
+      0 = no pose graph. A run that could create more keyframes is refused before compute.
+    graph_loops: loop-closure capacity of the pose graph; closures found with the list full are
+      counted (``loops_dropped``) and not added.
+    max_loop_cells: static bound of the loop-closure radius ``Params.loop_radius`` in cells (it
+      fixes the samples of a line-of-sight test).
   """
 
   height: int
@@ -77,6 +84,9 @@ class SimConfig:
   dijkstra_max_sweeps: int = 512
   plan_chunk: int = 4
   plan_window: int = 0
+  graph_nodes: int = 0
+  graph_loops: int = 256
+  max_loop_cells: int = 40
 
   def __post_init__(self):
     for name in ("height", "width", "n_beams", "max_range_cells", "path_capacity", "replan_every",
@@ -86,6 +96,10 @@ class SimConfig:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
     if self.max_inflation_cells < 0:
       raise ConfigError(f"max_inflation_cells must be >= 0, got {self.max_inflation_cells}")
+    for name in ("graph_nodes", "graph_loops", "max_loop_cells"):
+      value = getattr(self, name)
+      if not isinstance(value, (int, np.integer)) or value < 0:
+        raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
     if not isinstance(self.plan_window, (int, np.integer)) or self.plan_window < 0:
       raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
     if not (math.isfinite(self.res) and self.res > 0):
@@ -139,8 +153,17 @@ class Params:
   reloc_entropy: Any = 0.3  # "well-mapped": cell entropy below this, nats
   reloc_var_xy: Any = 1e-3  # measurement covariance R, m²
   reloc_var_theta: Any = 1e-3  # rad²
+  # SLAM pose graph (jaxplore.posegraph; Karto's settings in Ahmed et al.'s configuration)
+  kf_dist: Any = 0.3  # a keyframe every kf_dist m of odometry ...
+  kf_rot: Any = 0.3  # ... or kf_rot rad of turn
+  scan_match_sigma: Any = 0.018  # std of a scan match (odometry-edge floor, loop closures): m, rad
+  loop_radius: Any = 4.0  # a loop closes to a keyframe within this distance, m ...
+  loop_min_age: Any = 15.0  # ... at least this many keyframes older ...
+  loop_max_turn: Any = math.pi / 2  # ... whose heading differs by at most this, rad
   # episode
-  coverage_goal: Any = 0.99  # fraction of reachable free area that counts as complete
+  # Fraction of reachable free area that counts as complete; above 1 coverage never ends an
+  # episode, only the planner (a planner that returns home, Toriz & Sánchez) or the step budget.
+  coverage_goal: Any = 0.99
   # planner weights (name -> scalar)
   planner: Any = dataclasses.field(default_factory=dict)
 
@@ -263,7 +286,16 @@ def validate_params(params: Params, config: SimConfig) -> None:
     check(name, getattr(p, name), lambda a: a >= 0, ">= 0")
   for name in ("sigma0", "reloc_var_xy", "reloc_var_theta"):
     check(name, getattr(p, name), positive, "> 0")
-  check("coverage_goal", p.coverage_goal, lambda a: (a > 0) & (a <= 1), "in (0, 1]")
+  for name in ("kf_dist", "kf_rot", "scan_match_sigma", "loop_radius"):
+    check(name, getattr(p, name), positive, "> 0")
+  check("loop_min_age", p.loop_min_age, lambda a: a >= 1, ">= 1")
+  check("loop_max_turn", p.loop_max_turn, lambda a: (a >= 0) & (a <= math.pi + 1e-6), "in [0, π]")
+  if config.graph_nodes:
+    max_r = config.max_loop_cells * config.res
+    check("loop_radius", p.loop_radius, lambda a: a <= max_r + 1e-6,
+          f"<= max_loop_cells * res = {max_r:.3g} m (raise SimConfig.max_loop_cells)")
+    posegraph.check_capacity(config.graph_nodes, config.max_steps, p)
+  check("coverage_goal", p.coverage_goal, lambda a: a > 0, "> 0 (above 1: never complete by coverage)")
   for name, value in p.planner.items():
     check(f"planner.{name}", value, lambda a: np.ones_like(a, bool), "finite")
 
@@ -347,6 +379,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
       max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
+      max_loop_cells=max(1, math.ceil(float(np.max(np.asarray(params.loop_radius))) / res - 1e-6)),
   )
   if preset is not None:
     kwargs["n_beams"] = PRESETS[preset].n_beams

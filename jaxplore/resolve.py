@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import sim
+from jaxplore import posegraph, sim
 from jaxplore.config import (ConfigError, Params, SimConfig, config_for, make_params,
                              validate_params)
 from jaxplore.maps import GridMap, load_world
@@ -155,9 +155,17 @@ def _one_value(name: str, value):
 def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
   """(traced weights, static settings) of ``planner_params`` for ``planner``: every name must be
   one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
-  weights, settings = get_planner(planner).split_overrides(planner_params)
-  weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v for k, v in weights.items()}
-  return weights, {k: _one_value(k, v) for k, v in settings.items()}
+  spec = get_planner(planner)
+  weights, settings = spec.split_overrides(planner_params)
+  weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v
+             for k, v in weights.items()}
+  settings = {k: _one_value(k, v) for k, v in settings.items()}
+  for name, value in settings.items():
+    default = getattr(spec.settings, name)
+    if (isinstance(default, int) and not isinstance(default, bool) and isinstance(value, float)
+        and not value.is_integer()):
+      raise ConfigError(f"planner {planner!r}: setting {name} must be an integer, got {value!r}")
+  return weights, settings
 
 
 def split_params(params) -> tuple[dict, dict]:
@@ -205,6 +213,12 @@ def resolve(spec: RunSpec) -> Resolved:
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)
   max_steps = spec.max_steps if spec.max_steps is not None else default_max_steps(grid, params)
+  if spec.pose_graph or (spec.pose_graph is None and planner.needs_pose_graph):
+    # Room for every keyframe the run can create (posegraph.keyframe_bound).
+    overrides["graph_nodes"] = posegraph.keyframe_bound(max_steps, params.v_max, params.w_max,
+                                                        params.dt, params.kf_dist, params.kf_rot)
+    if spec.graph_loops is not None:
+      overrides["graph_loops"] = spec.graph_loops
   config = config_for(grid.shape, grid.res, params, preset=spec.preset, max_steps=max_steps,
                       **overrides)
   validate_params(params, config)
@@ -216,5 +230,5 @@ def resolve(spec: RunSpec) -> Resolved:
   return Resolved(spec, grid, config, params, world, spec.start)
 
 
-__all__ = ["Batch", "Resolved", "build_params", "config_difference", "default_max_steps", "load_grid", "resolve",
-           "split_params", "split_planner_params", "to_json_number"]
+__all__ = ["Batch", "Resolved", "build_params", "config_difference", "default_max_steps",
+           "load_grid", "resolve", "split_params", "split_planner_params", "to_json_number"]

@@ -39,8 +39,9 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
   """(episodes, curves) DataFrames of a batch from its final state and records [T, B].
 
   ``curves`` has one row per robot and step up to the robot's done step; ``episodes`` one row per
-  robot: its termination reason, the episode metrics of :func:`jaxplore.metrics.episode_row`
-  and its idle steps.
+  robot: its termination reason, the episode metrics of :func:`jaxplore.metrics.episode_row`,
+  its idle steps, the map quality of its final belief and, with pose graphs, their connectivity
+  (:func:`jaxplore.metrics.map_and_graph_row`).
   """
   robots = state.done.shape[0]
   n_reach = float(world.n_reachable)
@@ -56,8 +57,10 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
     order = np.lexsort((t_idx, r_idx))
     t_idx, r_idx = t_idx[order], r_idx[order]
     curves = pd.DataFrame({"robot": r_idx.astype(np.int32), "step": (t_idx + 1).astype(np.int32)})
-    for name in ("time", "distance", "entropy", "coverage", "det_cov", "pose_error", "x", "y"):
-      curves[name] = getattr(records, name)[t_idx, r_idx].astype(np.float64)
+    for name in ("time", "distance", "entropy", "coverage", "det_cov", "pose_error", "x", "y",
+                 "graph_nodes", "graph_edges", "dopt_mean"):
+      if getattr(records, name) is not None:  # the pose graph's columns only with a graph
+        curves[name] = getattr(records, name)[t_idx, r_idx].astype(np.float64)
   initial = float(config.height * config.width * math.log(2.0))
   rows = []
   groups = dict(tuple(curves.groupby("robot"))) if len(curves) else {}
@@ -68,6 +71,10 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
       row.update(metrics.episode_row(curve, initial, grid.res, n_reach, rate_interval))
     row["idle_steps"] = int(state.idle_steps[b])
     row["collisions"] = int(state.collisions[b])
+    graph = None if state.graph is None else jax.tree.map(lambda x: x[b], state.graph)
+    row.update(metrics.map_and_graph_row(
+        state.logodds[b], grid.occupied, graph,
+        None if curve is None or "dopt_mean" not in curve else curve.dopt_mean.to_numpy()))
     rows.append(row)
   return pd.DataFrame(rows), curves
 

@@ -7,8 +7,9 @@ robot stays, its path ends, and the cells it touched become occupied in its beli
 would tell it; walls it already knows are the planner's to avoid, by inflation) -> dead-reckon the estimate and propagate Σ
 (Li et al. 2020, Eq 16-17) -> scan the truth from the true pose -> relocalise if the scan ends on
 enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> update
-Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the planner's step
-hook (only when it has one) -> metrics -> termination.
+Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SLAM pose graph
+(keyframes and loop closures, :mod:`jaxplore.posegraph`; only when the run keeps one) -> the
+planner's step hook (only when it has one) -> metrics -> termination.
 
 Time spent waiting is not mission time (``time`` counts only steps in which the robot moved or
 turned; ``idle_steps`` counts the others: one per arrival, plus any wait of a robot with nothing
@@ -23,7 +24,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import mapping, motion, sensor
+from jaxplore import mapping, motion, posegraph, sensor
 from jaxplore.config import Params, SimConfig
 from jaxplore.planners import base as planners_base
 from jaxplore.world import World, cell_centre, cell_of, sample_start, to_cells
@@ -52,6 +53,8 @@ class State:
     done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
     collisions: i32 steps in which the robot's disc would have touched an occupied cell.
     memory: the planner's per-robot memory (a pytree; ``()`` for a planner without one).
+    graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`), or None when
+      ``SimConfig.graph_nodes`` is 0.
   """
 
   key: chex.Array
@@ -79,6 +82,7 @@ class State:
   reason: chex.Array
   collisions: chex.Array
   memory: Any = ()
+  graph: Any = None
 
 
 @chex.dataclass(frozen=True)
@@ -94,6 +98,10 @@ class Record:
   x: chex.Array  # true position, m
   y: chex.Array
   done: chex.Array  # bool
+  # With a pose graph (else None): keyframes, edges and the mean edge D-optimality (NaN: no edge).
+  graph_nodes: Any = None
+  graph_edges: Any = None
+  dopt_mean: Any = None
 
 
 def keeps_entropy_map(config: SimConfig) -> bool:
@@ -212,7 +220,10 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
       done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
-      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config), params))
+      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config),
+                                                                      params),
+      graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes
+             else None))
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
   return _check_complete(world, params, state)
 
@@ -224,10 +235,17 @@ def _check_complete(world: World, params: Params, state: State) -> State:
 
 
 def record(world: World, state: State) -> Record:
+  graph = {}
+  if state.graph is not None:
+    g = state.graph
+    edges = g.n_nodes - 1 + g.n_loops
+    total = jnp.sum(g.chain_w) + jnp.sum(g.loop_w)
+    graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
+                 dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
                 coverage=state.covered / world.n_reachable, det_cov=jnp.linalg.det(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
-                x=state.pose[0], y=state.pose[1], done=state.done)
+                x=state.pose[0], y=state.pose[1], done=state.done, **graph)
 
 
 def touched_cells(config: SimConfig, world: World, params: Params, xy):
@@ -340,6 +358,15 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                         distance=state.distance + delta_d,
                         collisions=state.collisions + collided.astype(jnp.int32))
   state = _sense(config, world, params, state, k_sense, busy)
+  if config.graph_nodes:
+    # Keyframes at the estimate after relocalisation; odometry edges with the covariance of the
+    # simulated odometry error (Eq 16's form, not Li's planning scale); line of sight in the updated
+    # belief, sampled at most half a cell apart (loop_radius <= max_loop_cells * res).
+    odometry_cov = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
+                                              params.odom_noise_phi)
+    state = state.replace(graph=posegraph.observe(
+        state.graph, state.pose_est, odometry_cov, motion.increment(delta_d, delta_phi), busy,
+        state.logodds, world.origin, res, params, 2 * config.max_loop_cells + 2))
   spec = planners_base.get_planner(config.planner)
   if spec.step_hook is not None:
     memory = spec.step_hook(planner_context(config), params, state.memory,

@@ -136,11 +136,11 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   return result
 
 
-def prepare(world="office", planner="nearest_frontier", robots=16, seed=0, preset="li2020",
-            res=None, start=None, max_steps=None, replan_every=None, params=None,
-            planner_params=None, pose_noise=False, path_capacity=None, plan_window=None):
+def prepare(world=None, planner=None, robots=None, seed=None, preset=None, res=None, start=None,
+            max_steps=None, replan_every=None, params=None, planner_params=None, pose_noise=None,
+            path_capacity=None, plan_window=None):
   """(grid, config, params, start) of a run: :func:`jaxplore.resolve.resolve` of these settings
-  (None = default), for scripts that drive the engine themselves."""
+  (None = :class:`RunSpec`'s default), for scripts that drive the engine themselves."""
   resolved = resolve(RunSpec.create(
       world=world, planner=planner, robots=robots, seed=seed, preset=preset, res=res, start=start,
       max_steps=max_steps, replan_every=replan_every, params=params, planner_params=planner_params,

@@ -134,6 +134,9 @@ class RunSpec:
     plan_window: side in cells of the window a ``windowed`` planner plans on first (0: the whole
       grid always); None: sized from the sensor range.
     pose_noise: noisy odometry, scans integrated at the dead-reckoned estimate.
+    pose_graph: keep each robot's SLAM pose graph and its metrics (:mod:`jaxplore.posegraph`);
+      None: when the planner reads one (ahmed, ags).
+    graph_loops: loop-closure capacity of the pose graph; None: the engine's default.
     params: simulator parameters (``--set``): a number for every robot, or a tuple with one
       number per robot.
     planner_params: the planner's weights and static settings (``--planner-set``), likewise.
@@ -155,6 +158,8 @@ class RunSpec:
   path_capacity: int | None = None
   plan_window: int | None = None
   pose_noise: bool = False
+  pose_graph: bool | None = None
+  graph_loops: int | None = None
   params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   planner_params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   rate_interval: float = 1.0
@@ -197,6 +202,12 @@ class RunSpec:
     if not isinstance(self.pose_noise, (bool, np.bool_)):
       raise ConfigError(f"pose_noise must be true or false, got {self.pose_noise!r}")
     put("pose_noise", bool(self.pose_noise))
+    if self.pose_graph is not None:
+      if not isinstance(self.pose_graph, (bool, np.bool_)):
+        raise ConfigError(f"pose_graph must be true or false, got {self.pose_graph!r}")
+      put("pose_graph", bool(self.pose_graph))
+    if self.graph_loops is not None:
+      put("graph_loops", positive_int(self.graph_loops, "graph_loops"))
     params = _mapping(self.params, "params")
     unknown = sorted(set(params) - set(SIM_PARAMS))
     if unknown:
@@ -300,6 +311,8 @@ TOML_KEYS = {
     "path_capacity": "waypoints a path may hold",
     "plan_window": "cells of the window a windowed planner plans on first (0: whole grid)",
     "pose_noise": "noisy odometry (true/false)",
+    "pose_graph": "keep each robot's SLAM pose graph and its metrics (true/false)",
+    "graph_loops": "loop-closure capacity of the pose graph",
     "rate_interval": "metres per interval of Std(E_r)",
     "chunk_epochs": "planning rounds per compiled call",
     "chunk_size": "robot-episodes per chunk (sweep)",
@@ -365,7 +378,8 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
   for key in ("res", "rate_interval"):
     if key in data:
       kwargs[key] = number(typed(key, (int, float), "a number"), f"{where}: {key}")
-  for key in ("robots", "max_steps", "replan_every", "path_capacity", "chunk_epochs", "devices"):
+  for key in ("robots", "max_steps", "replan_every", "path_capacity", "chunk_epochs", "devices",
+              "graph_loops"):
     if key in data:
       value = typed(key, int, "a positive integer")
       if value < 1:
@@ -381,8 +395,9 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
   if "robot_seeds" in data:
     kwargs["robot_seeds"] = [seed_value(s, f"{where}: a robot seed")
                              for s in typed("robot_seeds", list, "a list of seeds")]
-  if "pose_noise" in data:
-    kwargs["pose_noise"] = typed("pose_noise", bool, "true or false")
+  for key in ("pose_noise", "pose_graph"):
+    if key in data:
+      kwargs[key] = typed(key, bool, "true or false")
   if "start" in data:
     kwargs["start"] = typed("start", (str, list), "'x,y[,theta]' or [x, y, theta]")
   if "out" in data:

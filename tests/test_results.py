@@ -3,9 +3,11 @@
 
 import dataclasses
 import json
+import types
 
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 
 import jaxplore
@@ -13,6 +15,7 @@ from conftest import box_world
 from jaxplore import cli, results, runner, sweeps
 from jaxplore.config import ConfigError
 from jaxplore.planners import base, frontier
+from jaxplore.resolve import resolve
 from jaxplore.runspec import RunSpec
 from jaxplore.sweeps import schedule
 
@@ -109,18 +112,30 @@ def probe():
 
 
 def test_a_planners_memory_and_settings_reach_the_results_folder(probe, tmp_path):
-  out = tmp_path / "probe"
-  result = jaxplore.run(world=box_world(30, 40), planner=probe, robots=2, max_steps=12,
-                        replan_every=3, params={"r_max": 1.2}, planner_params={"plan_increment": 3},
-                        out=out, progress=False, quiet=True, devices=1)
-  config = json.loads((out / "config.json").read_text())
-  assert config["planner_settings"] == {"plan_increment": 3}
-  assert config["sim_config"]["planner_settings"] == {"plan_increment": 3}
+  """What ``jaxplore.run`` writes: the resolved settings (config.json) and the final state's
+  memory (memory.npz); the engine carrying the memory is tested with the planner contract."""
+  resolved = resolve(RunSpec(world=box_world(30, 40), planner=probe, robots=6, max_steps=12,
+                             planner_params={"plan_increment": 3}))
+  described = resolved.describe()
+  assert resolved.config.planner_settings == ProbeSettings(3)
+  assert described["planner_settings"] == {"plan_increment": 3}
+  assert described["sim_config"]["planner_settings"] == {"plan_increment": 3}
+  plans = np.arange(6, dtype=np.int32) * 3
+  state = types.SimpleNamespace(logodds=np.zeros((6, 30, 40), np.float32),
+                                memory={"plans": plans})
+  curves = pd.DataFrame({"robot": [0, 0], "step": [1, 2], "time": [0.4, 0.8],
+                         "distance": [0.1, 0.2], "entropy": [2.0, 1.0],
+                         "coverage": [0.1, 0.2], "x": [1.0, 1.1], "y": [1.0, 1.0]})
+  out = results.write_run(tmp_path / "run", described, {}, pd.DataFrame({"robot": [0]}), curves,
+                          resolved.grid, state)
+  assert json.loads((out / "config.json").read_text())["planner_settings"] == {"plan_increment": 3}
   with np.load(out / "memory.npz") as saved:
     assert saved.files == ["plans"]
-    plans = saved["plans"]
-  np.testing.assert_array_equal(plans, result.state.memory["plans"])
-  assert plans.shape == (2,) and (plans > 0).all() and (plans % 3 == 0).all()
+    np.testing.assert_array_equal(saved["plans"], plans[:4])  # the first robots
+  # a planner without memory (its memory is an empty tree) leaves none, nor an earlier one
+  results.write_run(out, described, {}, pd.DataFrame({"robot": [0]}), curves, resolved.grid,
+                    types.SimpleNamespace(logodds=state.logodds, memory=()))
+  assert not (out / "memory.npz").exists() and (out / "maps.npz").exists()
 
 
 def test_a_swept_static_setting_makes_a_group_per_value(probe):
@@ -134,6 +149,8 @@ def test_a_swept_static_setting_makes_a_group_per_value(probe):
       ("nearest_frontier", ("alpha",), 4)]
   assert [r.config.planner_settings for r in resolved[:2]] == [ProbeSettings(1), ProbeSettings(3)]
   assert resolved[0].config != resolved[1].config  # two compiled programs
+  with pytest.raises(ConfigError, match="plan_increment must be an integer, got 2.5"):
+    resolve(RunSpec(world=box_world(30, 40), planner=probe, planner_params={"plan_increment": 2.5}))
   with pytest.raises(ConfigError, match="plan_increment fixes the compiled program"):
     schedule.resolve_group(spec, dataclasses.replace(
         made.groups[0], rows=made.groups[0].rows + made.groups[1].rows), None, grids)

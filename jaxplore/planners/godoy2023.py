@@ -142,8 +142,14 @@ def frontier_candidates(config, view: base.BeliefView, robot: base.RobotView, di
     dist: f32[H, W] path cost from the robot (``reachable_paths``), inf where unreachable.
     min_frontier_size: clusters with ``size · res`` below this (m) are no candidates.
   """
+  return cluster_goals(config, view, robot, dist, labels.clusters(view.frontier, MAX_CLUSTERS))
+
+
+def cluster_goals(config, view: base.BeliefView, robot: base.RobotView, dist,
+                  found: labels.Clusters) -> Candidates:
+  """Each group of frontier cells' goal: its centroid cell if the robot can stand there, else its
+  cell nearest the centroid that the Dijkstra reaches and the blacklist allows."""
   height, width = view.frontier.shape
-  found = labels.clusters(view.frontier, MAX_CLUSTERS)
   slots = found.size.shape[0]
   reachable = jnp.isfinite(dist) & ~view.blacklist
 
