@@ -857,6 +857,9 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
   plan, groups = None, None
   if resume is not None:
     plan = _read_plan(out)
+    # The first collective sets up the processes' communication, which waits only ~30 s for
+    # all of them: hold it now, while they are in step, not after chunks of unequal length.
+    _barrier("jaxplore-sweep-resume", n_processes)
   else:
     spec = make_spec(grid, random, samples, random_seed,
                      DEFAULTS["seeds"] if seeds is None else seeds,
@@ -950,8 +953,11 @@ def _execute(plan, groups, out, n_dev, quiet, progress, process, n_processes) ->
   all_names = plan["names"]
   if out is not None:
     (out / "chunks").mkdir(parents=True, exist_ok=True)
-    for stray in (out / "chunks").glob("*.tmp"):
-      stray.unlink(missing_ok=True)  # a write cut short by an interruption
+    for stray in (out / "chunks").glob("chunk_*.tmp"):
+      # A write cut short by an interruption; each process clears its own chunks' only, since
+      # another process may be writing one of its own right now.
+      if int(stray.name[len("chunk_"):].split(".")[0]) % n_processes == process:
+        stray.unlink(missing_ok=True)
   work = []  # (group, chunk index, rows)
   done_rows = 0
   for group in groups:
