@@ -7,7 +7,7 @@ per step):
 
 * the engine (nearest-frontier planner, ``pose_noise=False``): robot-steps per second for each
   batch size, from the reset state, in chunks of planning epochs compiled ahead of time with
-  ``runner._compiled_advance`` (compile time reported on its own; every chunk is timed up to
+  ``driver.compiled_advance`` (compile time reported on its own; every chunk is timed up to
   ``block_until_ready``); the batch is sharded over ``--devices`` host devices;
 * the sequential reference (``experiments/reference_numpy.py``: one robot at a time, SciPy's
   Dijkstra for paths) from the same start poses for the same number of steps: its robot-steps
@@ -116,9 +116,11 @@ import jax.numpy as jnp  # noqa: E402
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 import reference_numpy  # noqa: E402
-from jaxplore import runner, sensor, sim  # noqa: E402
+from jaxplore import driver, sensor, sim  # noqa: E402
 from jaxplore.config import PARAM_FIELDS  # noqa: E402
 from jaxplore.maps import load_map, load_world  # noqa: E402
+from jaxplore.resolve import resolve  # noqa: E402
+from jaxplore.runspec import RunSpec  # noqa: E402
 
 LIDAR_BEAMS = 360
 LIDAR_RANGE_M = 15.0
@@ -153,16 +155,12 @@ def sample_starts(world: sim.World, grid, count: int, seed: int) -> np.ndarray:
 
 def setting(grid, preset: str, robots: int, steps: int):
   """(config, params) of the benchmark: nearest frontier, no pose noise, no timeout in the window."""
-  _, config, params, _ = runner.prepare(world=grid, planner="nearest_frontier", robots=robots,
-                                        preset=preset, max_steps=steps + 64)
-  return config, params
+  resolved = resolve(RunSpec(world=grid, planner="nearest_frontier", robots=robots, preset=preset,
+                             max_steps=steps + 64))
+  return resolved.config, resolved.params
 
 
 # --- engine ----------------------------------------------------------------------------------
-
-
-def shard_count(robots: int, devices: int) -> int:
-  return devices if robots % devices == 0 else math.gcd(robots, devices)
 
 
 def time_engine(compiled_cache: dict, config, params, world, starts, steps: int, chunk_steps: int,
@@ -176,7 +174,7 @@ def time_engine(compiled_cache: dict, config, params, world, starts, steps: int,
   is reported next to the reference's as a check that both did the same job).
   """
   robots = len(starts)
-  n_dev = shard_count(robots, devices)
+  n_dev = driver.shard_count(robots, devices)
   chunk_epochs = max(1, chunk_steps // config.replan_every)
   n_chunks = max(1, -(-steps // (chunk_epochs * config.replan_every)))
   params_b = sim.broadcast_params(params, robots)
@@ -188,7 +186,7 @@ def time_engine(compiled_cache: dict, config, params, world, starts, steps: int,
   key = (config, chunk_epochs, n_dev, robots)
   compile_s = None
   if key not in compiled_cache:
-    advance = runner._compiled_advance(config, chunk_epochs, n_dev)
+    advance = driver.compiled_advance(config, chunk_epochs, n_dev)
     t0 = time.perf_counter()
     compiled_cache[key] = advance.lower(world, params_b, state).compile()
     compile_s = time.perf_counter() - t0

@@ -1,11 +1,14 @@
-"""Planning time per round for a batch of robots: li2020 vs nearest frontier, side by side.
+"""Planning time per round for a batch of robots: li2020, gpbo and nearest frontier, side by side.
 
-Both planners plan for the same robots in the same belief states (taken after a few motion
+All planners plan for the same robots in the same belief states (taken after a few motion
 steps on a ~200x200-cell world), in one process; compile time is reported separately. Nearest
 frontier is timed with its planning window (the default) and on the whole grid, which is what
-li2020 (not windowed: its utility weighs every candidate) always plans on.
+li2020 and gpbo (not windowed: their utilities weigh every candidate) always plan on. The
+states carry Li's entropy map for the planners that read it; each planner gets its own fresh
+per-robot memory (gpbo's GP hyper-parameters, li2020's progress timeout).
 
 Usage: python experiments/bench_planning.py [--robots 256] [--world open] [--devices 2]
+       [--planners nearest_frontier,li2020,gpbo]
 """
 
 from __future__ import annotations
@@ -25,8 +28,11 @@ def main(argv=None):
   parser.add_argument("--warm-steps", type=int, default=40)
   parser.add_argument("--repeats", type=int, default=9)
   parser.add_argument("--devices", type=int, default=2)
+  parser.add_argument("--planners", default="nearest_frontier,li2020,gpbo",
+                      help="nearest_frontier is timed with its window and on the whole grid")
   args = parser.parse_args(argv)
   os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
+
   import dataclasses
 
   import jax
@@ -34,24 +40,33 @@ def main(argv=None):
   import numpy as np
   from jax.sharding import Mesh, PartitionSpec as P
 
-  from jaxplore import runner, sim
+  from jaxplore import sim
   from jaxplore.planners import get_planner
+  from jaxplore.resolve import resolve
+  from jaxplore.robot import keeps_entropy_map
+  from jaxplore.runspec import RunSpec
 
   rows = []
   states = None
-  for planner, whole_grid in (("nearest_frontier", False), ("nearest_frontier", True), ("li2020", False)):
-    grid, config, params, _ = runner.prepare(world=args.world, planner=planner, robots=args.robots,
-                                             max_steps=args.warm_steps + 8,
-                                             planner_params=dict(get_planner(planner).defaults))
-    if whole_grid:
-      config = dataclasses.replace(config, plan_window=0)
+  runs = []
+  for planner in args.planners.split(","):
+    runs += [(planner, False), (planner, True)] if planner == "nearest_frontier" else [(planner, False)]
+  for planner, whole_grid in runs:
+    resolved = resolve(RunSpec(world=args.world, planner=planner, robots=args.robots,
+                               max_steps=args.warm_steps + 8,
+                               plan_window=0 if whole_grid else None))
+    config, params, world = resolved.config, resolved.params, resolved.world
     window = config.plan_window if sim.uses_window(config) else "off"
-    world = sim.make_world(grid, float(params.r_robot))
     params_b = sim.broadcast_params(params, args.robots)
-    if states is None:  # the same belief states for both planners
+    if states is None:  # the same belief states for every planner, with Li's entropy map
+      warm = dataclasses.replace(config, entropy_map=True)
       keys = jax.random.split(jax.random.PRNGKey(0), args.robots)
-      states = sim.reset_batch(config, world, params_b, keys)
-      states, _ = sim.advance(config, world, params_b, states, args.warm_steps // config.replan_every)
+      states = sim.reset_batch(warm, world, params_b, keys)
+      states, _ = sim.advance(warm, world, params_b, states, args.warm_steps // warm.replan_every)
+    memory = get_planner(planner).initial_memory(sim.planner_context(config), params)
+    planner_states = states.replace(
+        memory=jax.tree.map(lambda x: jnp.broadcast_to(x, (args.robots,) + jnp.shape(x)), memory),
+        entropy_map=states.entropy_map if keeps_entropy_map(config) else None)
     n_dev = min(args.devices, len(jax.devices()))
     # Every robot plans (as when all arrive at once): the engine's per-robot planning loop.
     fn = lambda p, s: sim.plan_where_needed(config, world, p, s.replace(busy=jnp.zeros_like(s.busy)))
@@ -60,13 +75,13 @@ def main(argv=None):
       fn = jax.shard_map(fn, mesh=mesh, in_specs=(P("robots"), P("robots")), out_specs=P("robots"),
                          check_vma=False)
     t0 = time.perf_counter()
-    compiled = jax.jit(fn).lower(params_b, states).compile()
+    compiled = jax.jit(fn).lower(params_b, planner_states).compile()
     compile_s = time.perf_counter() - t0
-    jax.block_until_ready(compiled(params_b, states))
+    jax.block_until_ready(compiled(params_b, planner_states))
     times = []
     for _ in range(args.repeats):
       t0 = time.perf_counter()
-      jax.block_until_ready(compiled(params_b, states))
+      jax.block_until_ready(compiled(params_b, planner_states))
       times.append(time.perf_counter() - t0)
     per_round = float(np.median(times))
     rows.append((planner, window, compile_s, per_round, per_round / args.robots * 1e3))

@@ -9,7 +9,7 @@ versus the same settings run one at a time through ``jaxplore.run``, side by sid
   so different static configs) each run as ``jaxplore.run(robots=1)``, cold then warm; the other
   settings are **extrapolated** from them: in one Python process a static config compiles once and is then
   cached (alpha fixes a static bound, so the 256 settings need one compile per distinct config:
-  counted exactly with ``runner.prepare``), while separate ``jaxplore run`` commands compile every
+  counted exactly with ``resolve``), while separate ``jaxplore run`` commands compile every
   time (process start-up not counted).
 
 Compiles are counted, and their seconds summed, with a ``jax.monitoring`` listener on XLA backend
@@ -74,17 +74,18 @@ import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
 import jax.monitoring  # noqa: E402
-from jax._src import dispatch  # noqa: E402
 
 sys.path.insert(0, str(HERE.parent))
 import jaxplore  # noqa: E402
-from jaxplore import runner  # noqa: E402
+from jaxplore.driver import COMPILE_EVENT  # noqa: E402
+from jaxplore.resolve import resolve  # noqa: E402
+from jaxplore.runspec import RunSpec  # noqa: E402
 
 COMPILES: list[tuple[str, float]] = []
 
 
 def _on_event(event, duration, **kwargs):
-  if event == dispatch.BACKEND_COMPILE_EVENT:
+  if event == COMPILE_EVENT:
     COMPILES.append((str(kwargs.get("fun_name", "?")), float(duration)))
 
 
@@ -168,10 +169,9 @@ def main(args) -> int:
   # --- extrapolation of the one-at-a-time mode to every setting
   configs = set()
   for s in settings:
-    _, config, _, _ = runner.prepare(args.world, "li2020", 1, 0, "li2020", args.res, None,
-                                     args.max_steps, None, {"alpha": s["alpha"]},
-                                     {"k1": s["k1"], "k2": s["k2"]})
-    configs.add(config)
+    configs.add(resolve(RunSpec(world=args.world, planner="li2020", robots=1, res=args.res,
+                                max_steps=args.max_steps, params={"alpha": s["alpha"]},
+                                planner_params={"k1": s["k1"], "k2": s["k2"]})).config)
   overhead = float(np.mean([r["cold"] - r["warm"] for r in singles]))  # trace + compile per config
   warm_run = float(np.mean([r["warm"] for r in singles]))
   cold_run = float(np.mean([r["cold"] for r in singles]))

@@ -153,7 +153,7 @@ def expected_seconds(grids, args):
   budget. Compilation is paid once per (world, planner): the ``*_path`` rows reuse it.
   """
   from jaxplore.config import make_params
-  from jaxplore.runner import default_max_steps
+  from jaxplore.resolve import default_max_steps
   expected = upper = 0.0
   for label, grid in grids.items():
     params = make_params(WORLDS[label][1], res=grid.res)

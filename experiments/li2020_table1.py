@@ -1,4 +1,4 @@
-"""Li et al. 2020, Table 1 and Figure 7: li2020 vs nearest frontier on built-in and real maps.
+"""Li et al. 2020, Table 1 and Figure 7: li2020 vs nearest frontier and GP/BO on built-in and real maps.
 
 Table 1's columns (entropy reduction, distance, E_r, Std(E_r), coverage area), mean ± std over
 seeds, for each world and planner, with the paper's sensor preset (15 m, 190°, 0.25 m/s); and
@@ -37,11 +37,13 @@ WORLDS = {
     "willow": (str(SHARED / "willow.yaml"), 0.2, 6000),
     "mit_killian": (str(SHARED / "mit_killian.yaml"), 0.3, 1500),
 }
-PLANNERS = ("li2020", "nearest_frontier")
+PLANNERS = ("li2020", "nearest_frontier", "gpbo")
 # Extra rows (--variants): label -> (planner, planner weights).
 VARIANTS = {"li2020_per_metre": ("li2020", {"select": 1.0})}
 COLUMNS = [("entropy_reduction", "entropy reduction (nats)"), ("distance_m", "distance (m)"),
            ("E_r", "E_r (nats/m)"), ("Std_E_r", "Std(E_r) (nats/m)"), ("coverage_m2", "coverage (m²)"),
+           # Li's "Entropy" column is 16 x coverage on every row: their E_r is coverage per metre.
+           ("coverage_per_m", "coverage per metre (m²/m)"),
            ("coverage", "coverage (fraction)"), ("time_s", "time (s)")]
 
 
@@ -49,6 +51,7 @@ def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--seeds", type=int, default=16)
   parser.add_argument("--worlds", default=",".join(WORLDS))
+  parser.add_argument("--planners", default=",".join(PLANNERS))
   parser.add_argument("--max-steps", type=int, default=None)
   parser.add_argument("--devices", type=int, default=2)
   parser.add_argument("--quick", action="store_true")
@@ -68,11 +71,13 @@ def main(argv=None):
   import pandas as pd
 
   import jaxplore
-  from jaxplore import plot, runner
+  from jaxplore import plot
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
 
   out = Path(args.out)
   out.mkdir(parents=True, exist_ok=True)
-  labels = PLANNERS + tuple(v for v in args.variants.split(",") if v)
+  labels = tuple(p for p in args.planners.split(",") if p) + tuple(v for v in args.variants.split(",") if v)
   unknown = set(labels) - set(PLANNERS) - set(VARIANTS)
   if unknown:
     parser.error(f"unknown variant(s) {sorted(unknown)}; choose from {', '.join(VARIANTS)}")
@@ -87,7 +92,11 @@ def main(argv=None):
         continue
       # Each (world, planner) pair is saved as soon as it is done and reused by a later
       # invocation with the same settings, so a long table can be built in several sittings.
-      tag = f"{world}_{planner}_s{args.seeds}_m{max_steps or 'auto'}"
+      # R_e is part of the tag: parts from before it was derived by Eq 5-6 are not reused.
+      name, weights = VARIANTS.get(planner, (planner, None))
+      r_e = resolve(RunSpec(world=spec, planner=name, robots=1, preset="li2020", res=res,
+                            planner_params=weights or {})).config.r_e
+      tag = f"{world}_{planner}_s{args.seeds}_m{max_steps or 'auto'}_re{r_e:.2f}"
       part_e, part_c = out / f"{tag}.episodes.parquet", out / f"{tag}.curves.parquet"
       if part_e.exists() and part_c.exists():
         episodes.append(pd.read_parquet(part_e))
@@ -95,13 +104,12 @@ def main(argv=None):
         print(f"{world:12s} {planner:17s} reused {part_e.name}", flush=True)
         continue
       t0 = time.perf_counter()
-      name, weights = VARIANTS.get(planner, (planner, None))
       result = jaxplore.run(world=spec, planner=name, robots=args.seeds, seed=0, preset="li2020",
                             res=res, max_steps=max_steps, progress=False, quiet=True,
                             planner_params=weights, robot_seeds=list(range(args.seeds)),
                             devices=args.devices)
       e = result.episodes.assign(world=world, planner=planner, wall_s=time.perf_counter() - t0,
-                                 max_steps=result.config["sim_config"]["max_steps"])
+                                 max_steps=result.config["sim_config"]["max_steps"], r_e=r_e)
       c = result.curves.assign(world=world, planner=planner)
       for frame, path in ((e, part_e), (c, part_c)):
         frame.to_parquet(path.with_name(path.name + ".tmp"), index=False)
@@ -112,13 +120,14 @@ def main(argv=None):
       print(f"{world:12s} {planner:17s} {time.perf_counter() - t0:7.1f} s  {reasons}", flush=True)
   episodes = pd.concat(episodes, ignore_index=True)
   curves = pd.concat(curves, ignore_index=True)
+  episodes["coverage_per_m"] = episodes.coverage_m2 / episodes.distance_m
 
   def budget_of(g):
     if "max_steps" in g and g.max_steps.notna().all():
       return f"{int(g.max_steps.iloc[0])}"
     # Parts written before the budget was recorded ran with the runner's default.
     spec, res, _ = WORLDS[g.world.iloc[0]]
-    return f"{runner.prepare(world=spec, planner='nearest_frontier', robots=1, preset='li2020', res=res)[1].max_steps}"
+    return f"{resolve(RunSpec(world=spec, robots=1, preset='li2020', res=res)).config.max_steps}"
   episodes.to_parquet(out / "episodes.parquet", index=False)
   curves.to_parquet(out / "curves.parquet", index=False)
 

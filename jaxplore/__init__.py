@@ -2,9 +2,11 @@
 
 ``jaxplore.run(...)`` runs a batch of robots on a world and returns the tables (see
 :func:`jaxplore.runner.run`); ``jaxplore.sweep(...)`` runs worlds × planners × parameter settings
-× seeds in resumable chunks (see :func:`jaxplore.sweeps.sweep`). Submodules: ``maps``,
-``sensor``, ``mapping``, ``motion``, ``graph``, ``planners``, ``sim``, ``metrics``, ``plot``,
-``sweeps``, ``cli``.
+× seeds in resumable chunks (see :func:`jaxplore.sweeps.sweep`); both take the settings of
+:class:`jaxplore.runspec.RunSpec`. Submodules: the engine (``maps``, ``sensor``, ``mapping``,
+``motion``, ``graph``, ``planners``, ``sim``, ``metrics``) and the host layer around it
+(``runspec``, ``resolve``, ``driver``, ``results``, ``memory``, ``runner``, ``sweeps``,
+``animate``, ``plot``, ``cli``).
 
 Importing jaxplore does not import JAX, so the command line can set ``XLA_FLAGS`` (host device
 count) first; the heavy modules load on first use.

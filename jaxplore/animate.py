@@ -1,9 +1,11 @@
 """Animations of a saved run: belief map, trajectory and current path of chosen robots over time.
 
 A results folder keeps only the final belief of a few robots, so :func:`animate` *re-simulates* the
-chosen robots from ``config.json`` (a sweep folder: from its ``sweep_plan.json``, resolved by the
-sweep's own code) with the same static config, parameter values and PRNG keys (a run is
-reproducible), and checks that the replayed trajectory equals the ``x``, ``y`` columns of
+chosen robots: it rebuilds the run specification from ``config.json`` (a sweep folder: the
+specification of the robots' group, from its schedule) and resolves it as the run did
+(:func:`jaxplore.resolve.resolve`), giving the same static config, parameter values and PRNG keys
+(a run is reproducible); it refuses settings that resolve to another static config than the
+recorded one, and checks that the replayed trajectory equals the ``x``, ``y`` columns of
 ``curves.parquet`` before drawing anything, so the animation shows the run that was recorded.
 
 Frames are taken at planning rounds (every ``replan_every`` motion steps at the finest); each
@@ -14,14 +16,16 @@ and the rest of the path it is following at that moment (from its cell to its go
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from jaxplore.config import PARAM_FIELDS, ConfigError
+from jaxplore import results
+from jaxplore.config import ConfigError
+from jaxplore.resolve import config_difference, resolve
+from jaxplore.runspec import SIM_PARAMS, RunSpec
 
 MAX_FRAMES = 150  # default frame budget: --every is chosen so an animation has at most this many
 TOLERANCE_M = 1e-4  # replayed and recorded positions must agree to this (metres)
@@ -67,17 +71,8 @@ def load_run(run_dir) -> tuple[Path, dict, pd.DataFrame, pd.DataFrame]:
   Raises:
     ConfigError: the folder or one of its files is missing.
   """
-  run_dir = Path(run_dir)
-  if not run_dir.is_dir():
-    raise ConfigError(f"run directory {str(run_dir)!r} does not exist")
-  missing = [n for n in ("config.json", "episodes.parquet", "curves.parquet")
-             if not (run_dir / n).is_file()]
-  if missing:
-    raise ConfigError(f"{str(run_dir)!r} is not a finished results folder of `jaxplore run --out` "
-                      f"or `jaxplore sweep --out`: {', '.join(missing)} missing")
-  config = json.loads((run_dir / "config.json").read_text())
-  return (run_dir, config, pd.read_parquet(run_dir / "episodes.parquet"),
-          pd.read_parquet(run_dir / "curves.parquet"))
+  folder = results.load_folder(run_dir)
+  return folder.path, folder.config, folder.episodes, folder.curves
 
 
 def parse_robots(robots, n_robots: int) -> tuple[int, ...]:
@@ -117,104 +112,84 @@ def _robot_seeds(config: dict, episodes: pd.DataFrame):
   return [int(v) for v in seeds]
 
 
-def _select(value, robots, n_robots, name):
-  """A stored parameter for the chosen robots: a scalar, or one value per robot of the run."""
-  arr = np.asarray(value, np.float32)
-  if arr.ndim == 0:
-    return arr
-  if arr.shape != (n_robots,):
-    raise ConfigError(f"config.json: parameter {name} has {arr.shape[0]} values for {n_robots} robots")
-  return arr[list(robots)]
+def _legacy_spec(config: dict, episodes: pd.DataFrame, grid) -> RunSpec:
+  """The run spec of a folder written before config.json recorded one: every recorded parameter
+  value (so none is derived again), the recorded static sizes, seeds and start."""
+  sim_config = config["sim_config"]
+  n_robots = int(config["robots"])
+  values = lambda d: {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+  seeds = _robot_seeds(config, episodes)
+  if seeds is not None and len(seeds) != n_robots:
+    raise ConfigError(f"config.json records {len(seeds)} robot seeds for {n_robots} robots")
+  return RunSpec(
+      world=grid, planner=config.get("planner", sim_config["planner"]), robots=n_robots,
+      seed=int(config["seed"]), robot_seeds=seeds, preset=config.get("preset"),
+      start=config.get("start"), max_steps=sim_config["max_steps"],
+      replan_every=sim_config["replan_every"], path_capacity=sim_config["path_capacity"],
+      plan_window=sim_config.get("plan_window"), pose_noise=sim_config["pose_noise"],
+      params={k: v for k, v in values(config["params"]).items() if k in SIM_PARAMS},
+      planner_params=values(config["planner_params"]))
+
+
+def _check_config(resolved, recorded: dict | None, where: Path, version: str):
+  """Refuses to replay settings that resolve to another static config than the recorded one."""
+  difference = config_difference(recorded, resolved.config)
+  if difference is not None:
+    raise ConfigError(
+        f"{where} was written by jaxplore {version} and its settings resolve differently here "
+        f"({difference}): an animation would not show the recorded run")
 
 
 @dataclasses.dataclass
 class _Setup:
-  """What a replay needs: the chosen robots' static config, world, parameters, keys and starts."""
+  """What a replay needs: the chosen robots, the resolved batch and the planner's name."""
 
   robots: tuple
-  grid: object  # GridMap
-  planner: str
-  sim_config: object  # SimConfig
-  world: object  # sim.World
-  params: object  # Params, batched over the chosen robots
-  keys: object
-  starts: object
+  resolved: object  # jaxplore.resolve.Resolved
+  batch: object  # jaxplore.resolve.Batch of the chosen robots
 
 
 def _run_setup(run_dir: Path, config: dict, episodes: pd.DataFrame, robots) -> _Setup:
-  """A ``jaxplore run`` folder: everything from config.json, the truth from maps.npz."""
+  """A ``jaxplore run`` folder: its spec from config.json, the truth from maps.npz."""
   for key in ("sim_config", "params", "planner_params", "robots", "seed"):
     if key not in config:
       raise ConfigError(f"{run_dir / 'config.json'} has no {key!r}; it was not written by "
-                        f"`jaxplore run` (nor is it a sweep folder with a plan)")
+                        f"`jaxplore run` (nor is it a sweep folder with a schedule)")
   if not (run_dir / "maps.npz").is_file():
     raise ConfigError(f"{str(run_dir)!r} has no maps.npz (the truth map of the run)")
-  n_robots = int(config["robots"])
-  robots = parse_robots(robots, n_robots)
-
-  import jax
-  import jax.numpy as jnp
-
-  from jaxplore import runner, sim
-  from jaxplore.config import Params
-  from jaxplore.maps import GridMap
-
-  sim_config = sim.config_from_dict(config["sim_config"])
-  with np.load(run_dir / "maps.npz") as stored:
-    grid = GridMap(stored["occupied"], float(stored["res"]), tuple(np.asarray(stored["origin"]).tolist()),
-                   config.get("world", {}).get("name", "map"))
-  values = {k: v for k, v in config["params"].items() if k in PARAM_FIELDS}
-  # The run built its World with the largest robot radius of the whole batch.
-  r_robot = float(np.max(np.asarray(values["r_robot"], np.float32)))
-  start = config.get("start")
-  world = sim.make_world(grid, r_robot, None if start is None else start[:2])
-  params = Params(**{k: jnp.asarray(_select(v, robots, n_robots, k)) for k, v in values.items()},
-                  planner={k: jnp.asarray(_select(v, robots, n_robots, k))
-                           for k, v in config["planner_params"].items()})
-  seeds = _robot_seeds(config, episodes)
-  if seeds is None:
-    keys = jax.random.split(jax.random.PRNGKey(int(config["seed"])), n_robots)[jnp.asarray(robots)]
+  robots = parse_robots(robots, int(config["robots"]))
+  grid = results.read_maps_truth(run_dir / "maps.npz", config.get("world", {}).get("name", "map"))
+  if "spec" in config:
+    spec = RunSpec.from_json(config["spec"], world=grid)
   else:
-    if len(seeds) != n_robots:
-      raise ConfigError(f"{run_dir} records {len(seeds)} robot seeds for {n_robots} robots")
-    keys = runner.robot_keys([seeds[r] for r in robots])
-  starts = None if start is None else jnp.tile(jnp.asarray(start, jnp.float32), (len(robots), 1))
-  return _Setup(robots, grid, config.get("planner", sim_config.planner), sim_config, world,
-                sim.broadcast_params(params, len(robots)), keys, starts)
+    spec = _legacy_spec(config, episodes, grid)
+  resolved = resolve(spec)
+  _check_config(resolved, config["sim_config"], run_dir / "config.json",
+                config.get("jaxplore_version", "?"))
+  return _Setup(robots, resolved, resolved.batch(robots))
 
 
 def _sweep_setup(run_dir: Path, robots) -> _Setup:
-  """A ``jaxplore sweep`` folder: the robots (global row numbers) of one world × planner group,
-  resolved by the sweep's own code from its plan, as the sweep ran them."""
-  import jax.numpy as jnp
-
-  from jaxplore import runner, sim, sweeps
-  try:
-    plan = json.loads((run_dir / sweeps.PLAN_FILE).read_text())
-    groups, spec, n_robots = plan["groups"], plan["spec"], int(plan["rows"])
-  except (ValueError, KeyError, TypeError) as err:
-    raise ConfigError(f"{run_dir / sweeps.PLAN_FILE} is not a readable sweep plan ({err})") from None
-  robots = parse_robots(robots, n_robots)
-  where = {row["row"]: (g, row) for g, group in enumerate(groups) for row in group["rows"]}
+  """A ``jaxplore sweep`` folder: the robots (global row numbers) of one group, resolved from
+  its schedule as the sweep ran them."""
+  from jaxplore.sweeps import schedule as schedules
+  made = schedules.read_schedule(run_dir, action="animate")
+  robots = parse_robots(robots, made.rows)
+  where = {row.row: (g, k)
+           for g, group in enumerate(made.groups) for k, row in enumerate(group.rows)}
   chosen = {where[r][0] for r in robots}
   if len(chosen) > 1:
     def label(r):
-      group = groups[where[r][0]]
-      world = spec["worlds"][group["world"]]
-      return f"robot {r}: {world.get('name') or world.get('grid')} / {group['planner']}"
+      group = made.groups[where[r][0]]
+      return f"robot {r}: {made.spec.worlds[group.world].label} / {group.planner}"
     labels = [label(r) for r in robots]
     raise ConfigError("the chosen robots ran in different world x planner groups (different "
                       f"programs); animate one group at a time: {'; '.join(labels)}")
-  gplan = groups[chosen.pop()]
-  group = sweeps._resolve_group(spec, gplan, run_dir, {})
-  rows = [where[r][1] for r in robots]
-  params, planner_params = sweeps._group_params(group.run, gplan["planner"], gplan["names"], rows)
-  p = runner.build_params(gplan["planner"], group.run["preset"], group.grid.res, params, planner_params)
-  keys = runner.robot_keys([row["seed"] for row in rows])
-  starts = (None if group.start is None
-            else jnp.tile(jnp.asarray(group.start, jnp.float32), (len(robots), 1)))
-  return _Setup(robots, group.grid, gplan["planner"], group.config, group.world_dev,
-                sim.broadcast_params(p, len(robots)), keys, starts)
+  group = made.groups[chosen.pop()]
+  resolved = schedules.resolve_group(made.spec, group, run_dir, {})
+  _check_config(resolved, group.sim_config, schedules.schedule_path(run_dir),
+                made.jaxplore_version)
+  return _Setup(robots, resolved, resolved.batch([where[r][1] for r in robots]))
 
 
 def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, progress: bool = True,
@@ -237,13 +212,13 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
   run_dir, config, episodes, curves = load_run(run_dir)
   if every is not None and not (isinstance(every, (int, np.integer)) and every >= 1):
     raise ConfigError(f"every must be a positive number of steps, got {every!r}")
-  from jaxplore import sweeps
-  if (run_dir / sweeps.PLAN_FILE).is_file():
+  if results.is_sweep_folder(run_dir):
     setup = _sweep_setup(run_dir, robots)
   else:
     setup = _run_setup(run_dir, config, episodes, robots)
-  robots, sim_config, world, params, keys, starts = (
-      setup.robots, setup.sim_config, setup.world, setup.params, setup.keys, setup.starts)
+  robots, resolved = setup.robots, setup.resolved
+  sim_config, world = resolved.config, resolved.world
+  params, keys, starts = setup.batch
 
   import jax
 
@@ -316,8 +291,8 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
           f"(by {dev[first]:.3g} m, at most {dev.max():.3g} m); the run was made with JAX "
           f"{config.get('jax_version', '?')} and jaxplore {config.get('jaxplore_version', '?')}, "
           f"this is JAX {jax.__version__}: an animation would not show the recorded run")
-  grid = setup.grid
-  return Replay(robots=robots, config=config, planner=setup.planner, world=grid.name,
+  grid = resolved.grid
+  return Replay(robots=robots, config=config, planner=resolved.spec.planner, world=grid.name,
                 occupied=grid.occupied, res=grid.res,
                 origin=np.asarray(grid.origin), x=x, y=y, steps_recorded=steps_recorded,
                 frames=frames, max_deviation_m=deviation)

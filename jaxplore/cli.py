@@ -1,7 +1,8 @@
 """The ``jaxplore`` command: ``run``, ``sweep``, ``maps``, ``plot``.
 
-A thin argparse layer over :func:`jaxplore.runner.run` and friends (STYLE.md practice 15). JAX is
-imported only after the arguments are parsed, so ``--devices`` can set how many host devices XLA
+A thin argparse layer over :func:`jaxplore.runner.run` and friends: ``run`` and ``sweep`` take the
+same run settings (:class:`jaxplore.runspec.RunSpec`, whose defaults they show). JAX computes
+nothing before the arguments are parsed, so ``--devices`` can set how many host devices XLA
 exposes (XLA:CPU runs a loop body on one thread; two devices use both cores).
 """
 
@@ -25,12 +26,14 @@ def _key_values(items, what):
   return out
 
 
-def _parameter_flags(extra, planner):
-  """``--NAME VALUE`` / ``--NAME=VALUE`` for any simulator parameter or weight of ``planner``
-  (e.g. ``--alpha 1.5 --k1 0.2``): (params, planner_params). Anything else is an error."""
-  from jaxplore.config import PARAM_FIELDS, ConfigError
+def _parameter_flags(extra, planners):
+  """``--NAME VALUE`` / ``--NAME=VALUE`` for any simulator parameter, or weight or setting of one
+  of ``planners`` (e.g. ``--alpha 1.5 --k1 0.2``): (params, planner_params). Anything else is an
+  error."""
+  from jaxplore.config import ConfigError
   from jaxplore.planners import get_planner
-  weights = set(get_planner(planner).defaults)
+  from jaxplore.runspec import SIM_PARAMS, kind_of
+  specs = [get_planner(p) for p in planners]
   params, planner_params = {}, {}
   i = 0
   while i < len(extra):
@@ -44,14 +47,17 @@ def _parameter_flags(extra, planner):
       value, i = extra[i + 1], i + 1
     i += 1
     name = name.replace("-", "_")
-    if name in PARAM_FIELDS:
+    kinds = {kind_of(name, spec) for spec in specs} - {None}
+    if kinds & {"param", "static"}:
       target = params
-    elif name in weights:
+    elif kinds:
       target = planner_params
     else:
+      weights = sorted({w for spec in specs for w in spec.defaults})
       raise ConfigError(f"unrecognized argument --{name}: not an option, a simulator "
-                       f"parameter ({', '.join(PARAM_FIELDS)}) nor a weight of planner {planner!r} "
-                       f"({', '.join(sorted(weights)) or 'none'})")
+                        f"parameter ({', '.join(SIM_PARAMS)}) nor a weight of planner "
+                        f"{' or '.join(repr(p) for p in planners)} "
+                        f"({', '.join(weights) or 'none'})")
     try:
       target[name] = float(value)
     except ValueError:
@@ -81,15 +87,64 @@ def _reporting_errors(compute):
     return None, 130
 
 
-def _sweep(args) -> int:
-  """``jaxplore sweep``: flags -> :func:`jaxplore.sweeps.sweep` (None = from --config or default)."""
+def _spec_flags(args, extra, planners) -> dict:
+  """The run settings given as flags (None where not given), parameter tables included."""
+  params, planner_params = _parameter_flags(extra, planners)
+  params.update(_key_values(args.set, "--set"))
+  planner_params.update(_key_values(args.planner_set, "--planner-set"))
+  return dict(preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
+              replan_every=args.replan_every, path_capacity=args.path_capacity,
+              plan_window=args.plan_window, pose_noise=args.pose_noise,
+              pose_graph=args.pose_graph, graph_loops=args.graph_loops,
+              rate_interval=args.rate_interval, chunk_epochs=args.chunk_epochs,
+              strategy=args.strategy,
+              params=params or None, planner_params=planner_params or None,
+              out=args.out, devices=args.devices)
+
+
+def _run(args, extra) -> int:
+  """``jaxplore run``: flags (and ``--config``) -> :func:`jaxplore.runner.run`."""
   from jaxplore.config import ConfigError
-  from jaxplore import sweeps
+  from jaxplore.runspec import RunSpec, load_run_config, merge_settings
 
   def compute():
-    devices = args.devices
-    if devices is None and args.config is not None:
-      devices = sweeps.load_config(args.config).get("devices")
+    from_file = {} if args.config is None else load_run_config(args.config)
+    planner = args.planner or from_file.get("planner") or RunSpec.planner
+    robot_seeds = None
+    if args.robot_seeds is not None:
+      try:
+        robot_seeds = [int(v) for v in args.robot_seeds.split(",") if v.strip()]
+      except ValueError:
+        raise ConfigError(f"--robot-seeds takes integers like 0,3,7, "
+                          f"got {args.robot_seeds!r}") from None
+    explicit = dict(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
+                    robot_seeds=robot_seeds, **_spec_flags(args, extra, [planner]))
+    settings = merge_settings(from_file, explicit)
+    _set_devices(settings.get("devices"))  # before JAX starts
+    from jaxplore.runner import run
+    out, devices = settings.pop("out"), settings.pop("devices")
+    return run(out=out, devices=devices, progress=not args.no_progress, **settings)
+
+  result, code = _reporting_errors(compute)
+  if code:
+    return code
+  t = result.timing
+  print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
+        f"{t['robot_steps_per_s']:.0f} robot-steps/s")
+  if result.out is not None:
+    print(f"results in {result.out}")
+  return 0
+
+
+def _sweep(args, extra) -> int:
+  """``jaxplore sweep``: flags -> :func:`jaxplore.sweeps.sweep` (None = from --config or default)."""
+  from jaxplore import sweeps
+  from jaxplore.config import ConfigError
+  from jaxplore.runspec import RunSpec
+
+  def compute():
+    config = None if args.config is None else sweeps.load_config(args.config)  # read once: a pipe
+    devices = args.devices if args.devices is not None else (config or {}).get("devices")
     _set_devices(devices)  # before JAX starts
     grid = None
     for item in args.grid or []:
@@ -107,15 +162,13 @@ def _sweep(args) -> int:
       name, spec = item.split("=", 1)
       random = dict(random or {}, **{name.strip(): sweeps.parse_random_spec(spec)})
     one = lambda names: None if names is None else (names[0] if len(names) == 1 else names)
+    planners = args.planner or (config or {}).get("planner") or RunSpec.planner
+    settings = _spec_flags(args, extra, planners if isinstance(planners, list) else [planners])
     return sweeps.sweep(
-        grid=grid, seeds=args.seeds, world=one(args.world), planner=one(args.planner), out=args.out,
+        grid=grid, seeds=args.seeds, world=one(args.world), planner=one(args.planner),
         quiet=args.quiet, random=random, samples=args.samples, random_seed=args.random_seed,
-        chunk_size=args.chunk_size, resume=args.resume, config=args.config,
-        progress=not args.no_progress, devices=args.devices, distributed=args.distributed,
-        preset=args.preset, res=args.res, max_steps=args.max_steps, replan_every=args.replan_every,
-        params=_key_values(args.set, "--set") or None,
-        planner_params=_key_values(args.planner_set, "--planner-set") or None,
-        pose_noise=args.pose_noise)
+        chunk_size=args.chunk_size, resume=args.resume, config=config,
+        progress=not args.no_progress, distributed=args.distributed, **settings)
 
   result, code = _reporting_errors(compute)
   if code:
@@ -129,30 +182,68 @@ def _sweep(args) -> int:
   return 0
 
 
+def _add_spec_flags(p):
+  """The run settings shared by ``jaxplore run`` and ``jaxplore sweep`` (defaults: RunSpec's)."""
+  from jaxplore.runspec import RunSpec
+  p.add_argument("--preset", default=None, help=f"sensor/robot preset (default {RunSpec.preset})")
+  p.add_argument("--res", type=float, default=None, help="planning resolution, m/cell")
+  p.add_argument("--start", default=None,
+                 help="x,y[,theta] start for every robot (default: random)")
+  p.add_argument("--max-steps", type=int, default=None,
+                 help="step budget per robot (default: from the world's free area)")
+  p.add_argument("--replan-every", type=int, default=None,
+                 help="steps between planning rounds of a robot on its path "
+                 "(default: the preset's)")
+  p.add_argument("--path-capacity", type=int, default=None, help="waypoints a path may hold")
+  p.add_argument("--plan-window", type=int, default=None, metavar="CELLS",
+                 help="window nearest frontier plans on first (0: whole grid; default from the "
+                 "range)")
+  p.add_argument("--pose-noise", action="store_true", default=None,
+                 help="noisy odometry, drifting estimate")
+  p.add_argument("--pose-graph", action="store_true", default=None,
+                 help="keep each robot's SLAM pose graph and its metrics (always on for ahmed "
+                 "and ags)")
+  p.add_argument("--graph-loops", type=int, default=None, metavar="N",
+                 help="loop-closure capacity of the pose graph (default 256)")
+  p.add_argument("--rate-interval", type=float, default=None,
+                 help=f"metres per interval of Std(E_r) (default {RunSpec.rate_interval:g})")
+  p.add_argument("--chunk-epochs", type=int, default=None,
+                 help="planning rounds per compiled call (progress granularity)")
+  p.add_argument("--strategy", default=None, choices=("auto", "per_robot", "lockstep"),
+                 help="how the batch is executed: per_robot (robots one or a few at a time through "
+                 "the irregular stages) or lockstep (one kernel per stage for the whole batch); "
+                 "the results are the same (default auto: per_robot on CPU, lockstep on GPU/TPU)")
+  p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                 help="a simulator parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 "
+                 "--k1 0.2)")
+  p.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
+                 help="a planner weight or setting")
+  p.add_argument("--devices", type=int, default=None,
+                 help="host devices to shard over (default: cores)")
+  p.add_argument("--no-progress", action="store_true")
+
+
 def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="jaxplore", description=__doc__.splitlines()[0])
   sub = parser.add_subparsers(dest="command", required=True)
 
-  run = sub.add_parser("run", help="run a batch of robots exploring a world")
-  run.add_argument("--world", default="office", help="built-in world name or map_server YAML path")
-  run.add_argument("--planner", default="nearest_frontier")
-  run.add_argument("--robots", type=int, default=16)
-  run.add_argument("--seed", type=int, default=0)
-  run.add_argument("--preset", default="li2020", help="sensor/robot preset")
-  run.add_argument("--res", type=float, default=None, help="planning resolution, m/cell")
-  run.add_argument("--start", default=None, help="x,y[,theta] start for every robot (default: random)")
-  run.add_argument("--max-steps", type=int, default=None)
-  run.add_argument("--replan-every", type=int, default=None)
-  run.add_argument("--plan-window", type=int, default=None, metavar="CELLS",
-                   help="window nearest frontier plans on first (0: whole grid; default from the range)")
-  run.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="override a parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 --k1 0.2)")
-  run.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
-                   help="override a planner weight")
-  run.add_argument("--pose-noise", action="store_true", help="noisy odometry, drifting estimate")
+  run = sub.add_parser("run", help="run a batch of robots exploring a world",
+                       description="Any simulator parameter or planner weight is also a flag: "
+                       "--NAME VALUE (e.g. --alpha 1.5 --k1 0.2).")
+  from jaxplore.runspec import RunSpec
+  run.add_argument("--config", default=None, metavar="TOML",
+                   help="settings from a TOML file (the keys of a sweep file; flags win)")
+  run.add_argument("--world", default=None,
+                   help=f"built-in world name or map_server YAML path (default {RunSpec.world})")
+  run.add_argument("--planner", default=None, help=f"planner (default {RunSpec.planner})")
+  run.add_argument("--robots", type=int, default=None,
+                   help=f"batch size (default {RunSpec.robots})")
+  run.add_argument("--seed", type=int, default=None, help=f"PRNG seed (default {RunSpec.seed})")
+  run.add_argument("--robot-seeds", default=None, metavar="S1,S2,...",
+                   help="one PRNG seed per robot instead of --seed (robot b starts as seed b does "
+                   "in a sweep)")
   run.add_argument("--out", default=None, help="results folder")
-  run.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
-  run.add_argument("--no-progress", action="store_true")
+  _add_spec_flags(run)
 
   sw = sub.add_parser(
       "sweep", help="worlds x planners x parameter settings x seeds, in resumable chunks",
@@ -162,11 +253,13 @@ def build_parser() -> argparse.ArgumentParser:
       "interrupted sweep. Flags given here win over the --config file.")
   sw.add_argument("--config", default=None, metavar="TOML", help="sweep settings from a TOML file")
   sw.add_argument("--resume", default=None, metavar="DIR",
-                  help="finish the interrupted sweep in DIR (every setting comes from its plan)")
+                  help="finish the interrupted sweep in DIR (every setting comes from its "
+                  "schedule)")
   sw.add_argument("--world", nargs="+", default=None, metavar="WORLD",
-                  help="one or more worlds: names or map_server YAML paths (default: building)")
+                  help=f"one or more worlds: names or map_server YAML paths "
+                  f"(default {RunSpec.world})")
   sw.add_argument("--planner", nargs="+", default=None, metavar="PLANNER",
-                  help="one or more planners (default: li2020)")
+                  help=f"one or more planners (default {RunSpec.planner})")
   sw.add_argument("--grid", nargs="+", default=None, metavar="NAME=V1,V2,...",
                   help="values of each swept parameter, e.g. alpha=1.0,1.5 k1=0,0.2 k2=0.6,0.9")
   sw.add_argument("--random", nargs="+", default=None, metavar="NAME=LOW:HIGH[:log]",
@@ -174,21 +267,13 @@ def build_parser() -> argparse.ArgumentParser:
   sw.add_argument("--samples", type=int, default=None, help="random points drawn from the --random ranges")
   sw.add_argument("--random-seed", type=int, default=None, help="seed of the random points (default 0)")
   sw.add_argument("--seeds", type=int, default=None, help="seeds per setting (default 8)")
-  sw.add_argument("--preset", default=None, help="sensor/robot preset (default li2020)")
-  sw.add_argument("--res", type=float, default=None)
-  sw.add_argument("--max-steps", type=int, default=None)
-  sw.add_argument("--replan-every", type=int, default=None)
-  sw.add_argument("--set", action="append", metavar="NAME=VALUE")
-  sw.add_argument("--planner-set", action="append", metavar="NAME=VALUE")
-  sw.add_argument("--pose-noise", action="store_true", default=None)
   sw.add_argument("--chunk-size", type=int, default=None,
                   help="robot-episodes per chunk (default: at most 256, as many as fit in memory)")
-  sw.add_argument("--out", default=None, help="results folder (plan, chunks, tables, figures)")
-  sw.add_argument("--devices", type=int, default=None, help="host devices to shard over (default: cores)")
+  sw.add_argument("--out", default=None, help="results folder (schedule, chunks, tables, figures)")
   sw.add_argument("--distributed", action="store_true",
                   help="call jax.distributed.initialize() and split the chunks over the processes")
-  sw.add_argument("--no-progress", action="store_true")
   sw.add_argument("--quiet", action="store_true", help="no per-setting table")
+  _add_spec_flags(sw)
 
   maps = sub.add_parser("maps", help="list the built-in worlds, or render one to PNG")
   maps.add_argument("--render", default=None, metavar="WORLD", help="world name or YAML path")
@@ -217,33 +302,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
   parser = build_parser()
   args, extra = parser.parse_known_args(argv)
-  if extra and args.command != "run":
+  if extra and args.command not in ("run", "sweep"):
     parser.error(f"unrecognized arguments: {' '.join(extra)}")
   if args.command == "run":
-    _set_devices(args.devices)
-    from jaxplore.runner import run
-
-    def compute():
-      params, planner_params = _parameter_flags(extra, args.planner)
-      params.update(_key_values(args.set, "--set"))
-      planner_params.update(_key_values(args.planner_set, "--planner-set"))
-      return run(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
-                 preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
-                 replan_every=args.replan_every, params=params, planner_params=planner_params,
-                 pose_noise=args.pose_noise, out=args.out, progress=not args.no_progress,
-                 devices=args.devices, plan_window=args.plan_window)
-
-    result, code = _reporting_errors(compute)
-    if code:
-      return code
-    t = result.timing
-    print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
-          f"{t['robot_steps_per_s']:.0f} robot-steps/s")
-    if result.out is not None:
-      print(f"results in {result.out}")
-    return 0
+    return _run(args, extra)
   if args.command == "sweep":
-    return _sweep(args)
+    return _sweep(args, extra)
   if args.command == "maps":
     from jaxplore.maps import MapError, load_world, render_png, world_table
     if args.render:

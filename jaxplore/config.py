@@ -60,7 +60,7 @@ class SimConfig:
       (it always replans when its path is done).
     max_steps: the step budget of an episode (``timeout`` after it).
     planner: registry name of the planner.
-    pose_noise: corrupt odometry and dead-reckon the estimate (SPEC §1); when False the estimate
+    pose_noise: corrupt odometry and dead-reckon the estimate; when False the estimate
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
     max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
@@ -78,6 +78,12 @@ class SimConfig:
       planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
       window cannot certify the answer. 0 = always the whole grid. :func:`config_for` picks it
       from the sensor range, capped at :data:`PLAN_REACH_M` (:func:`auto_plan_window`).
+    graph_nodes: keyframe capacity of each robot's SLAM pose graph (:mod:`jaxplore.posegraph`);
+      0 = no pose graph. A run that could create more keyframes is refused before compute.
+    graph_loops: loop-closure capacity of the pose graph; closures found with the list full are
+      counted (``loops_dropped``) and not added.
+    max_loop_cells: static bound of the loop-closure radius ``Params.loop_radius`` in cells (it
+      fixes the samples of a line-of-sight test).
     strategy: how the batch is executed (:data:`STRATEGIES`): ``"per_robot"`` walks the robots
       one (or ``plan_chunk``) at a time through the irregular stages, ``"lockstep"`` runs each
       stage as one kernel over the whole batch; ``"auto"`` (the default) is resolved on
@@ -102,6 +108,9 @@ class SimConfig:
   dijkstra_max_sweeps: int = 512
   plan_chunk: int = 4
   plan_window: int = 0
+  graph_nodes: int = 0
+  graph_loops: int = 256
+  max_loop_cells: int = 40
   strategy: str = "auto"
 
   def __post_init__(self):
@@ -115,6 +124,10 @@ class SimConfig:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
     if self.max_inflation_cells < 0:
       raise ConfigError(f"max_inflation_cells must be >= 0, got {self.max_inflation_cells}")
+    for name in ("graph_nodes", "graph_loops", "max_loop_cells"):
+      value = getattr(self, name)
+      if not isinstance(value, (int, np.integer)) or value < 0:
+        raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
     if not isinstance(self.plan_window, (int, np.integer)) or self.plan_window < 0:
       raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
     if not (math.isfinite(self.res) and self.res > 0):
@@ -136,7 +149,7 @@ class Params:
   scalars, so every planner can add its own without the simulator knowing them).
   """
 
-  # lidar (SPEC §1)
+  # lidar
   r_max: Any = 15.0  # max range, m
   fov: Any = math.radians(190.0)  # field of view, rad
   range_noise: Any = 0.0  # std of Gaussian range noise, m
@@ -155,16 +168,30 @@ class Params:
   w_max: Any = 1.0  # rad/s
   dt: Any = 0.4  # s
   r_robot: Any = 0.2  # m
-  # localisation (Li Eq 16-17 and SPEC §1)
-  sigma_d: Any = 1.0
-  sigma_phi: Any = 1.0
+  # localisation (Li Eq 16-17; relocalisation by a Kalman update)
+  sigma_d: Any = 1.0  # Li's planning model V_n (Eq 16): std per metre driven, for Σ
+  sigma_phi: Any = 1.0  # and per radian turned
+  # The simulated odometry error with ``pose_noise`` (not Li's V_n, a 100 % std per metre):
+  # zero-mean Gaussian increments of a wheeled robot whose SLAM front end keeps the error to a
+  # few percent, corrected further by relocalisation.
+  odom_noise_d: Any = 0.03  # std of the distance (and lateral) error per metre driven
+  odom_noise_phi: Any = 0.03  # std of the heading error per radian turned
   sigma0: Any = 1e-4  # initial pose covariance, diag, m² and rad²
   reloc_min_hits: Any = 20.0  # beams that must end on well-mapped occupied cells
   reloc_entropy: Any = 0.3  # "well-mapped": cell entropy below this, nats
   reloc_var_xy: Any = 1e-3  # measurement covariance R, m²
   reloc_var_theta: Any = 1e-3  # rad²
+  # SLAM pose graph (jaxplore.posegraph; Karto's settings in Ahmed et al.'s configuration)
+  kf_dist: Any = 0.3  # a keyframe every kf_dist m of odometry ...
+  kf_rot: Any = 0.3  # ... or kf_rot rad of turn
+  scan_match_sigma: Any = 0.018  # std of a scan match (odometry-edge floor, loop closures): m, rad
+  loop_radius: Any = 4.0  # a loop closes to a keyframe within this distance, m ...
+  loop_min_age: Any = 15.0  # ... at least this many keyframes older ...
+  loop_max_turn: Any = math.pi / 2  # ... whose heading differs by at most this, rad
   # episode
-  coverage_goal: Any = 0.99  # fraction of reachable free area that counts as complete
+  # Fraction of reachable free area that counts as complete; above 1 coverage never ends an
+  # episode, only the planner (a planner that returns home, Toriz & Sánchez) or the step budget.
+  coverage_goal: Any = 0.99
   # planner weights (name -> scalar)
   planner: Any = dataclasses.field(default_factory=dict)
 
@@ -282,11 +309,22 @@ def validate_params(params: Params, config: SimConfig) -> None:
   max_rr = config.max_inflation_cells * config.res
   check("r_robot", p.r_robot, lambda a: a <= max_rr + 1e-6,
         f"<= max_inflation_cells * res = {max_rr:.3g} m (raise SimConfig.max_inflation_cells)")
-  for name in ("sigma_d", "sigma_phi", "reloc_min_hits", "reloc_entropy"):
+  for name in ("sigma_d", "sigma_phi", "odom_noise_d", "odom_noise_phi", "reloc_min_hits",
+               "reloc_entropy"):
     check(name, getattr(p, name), lambda a: a >= 0, ">= 0")
   for name in ("sigma0", "reloc_var_xy", "reloc_var_theta"):
     check(name, getattr(p, name), positive, "> 0")
-  check("coverage_goal", p.coverage_goal, lambda a: (a > 0) & (a <= 1), "in (0, 1]")
+  for name in ("kf_dist", "kf_rot", "scan_match_sigma", "loop_radius"):
+    check(name, getattr(p, name), positive, "> 0")
+  check("loop_min_age", p.loop_min_age, lambda a: a >= 1, ">= 1")
+  check("loop_max_turn", p.loop_max_turn, lambda a: (a >= 0) & (a <= math.pi + 1e-6), "in [0, π]")
+  if config.graph_nodes:
+    max_r = config.max_loop_cells * config.res
+    check("loop_radius", p.loop_radius, lambda a: a <= max_r + 1e-6,
+          f"<= max_loop_cells * res = {max_r:.3g} m (raise SimConfig.max_loop_cells)")
+    from jaxplore import posegraph  # a cycle at import time: posegraph needs ConfigError
+    posegraph.check_capacity(config.graph_nodes, config.max_steps, p)
+  check("coverage_goal", p.coverage_goal, lambda a: a > 0, "> 0 (above 1: never complete by coverage)")
   for name, value in p.planner.items():
     check(f"planner.{name}", value, lambda a: np.ones_like(a, bool), "finite")
 
@@ -330,9 +368,38 @@ def auto_plan_window(height: int, width: int, reach_cells: int, max_inflation_ce
   return side if 2 * side * side <= height * width and side < min(height, width) else 0
 
 
+def effective_radius(res: float, fov: float, n_beams: int, dpi_min: float | None = None) -> float:
+  """Li et al.'s effective radius R_e (Eq 5-6), m: the largest distance D at which the scanner
+  density ``S_dpi = 1 / (D·tan θ)`` stays above ``dpi_min``, i.e. ``1 / (dpi_min·tan θ)``.
+
+  Args:
+    res: metres per cell; ``dpi_min`` defaults to one beam per cell, ``1 / res``.
+    fov, n_beams: the lidar's field of view (rad) and beam count; θ is the angle between two
+      adjacent beams (:func:`jaxplore.sensor.beam_angles`' spacing).
+    dpi_min: Eq 6's minimum density, beams per metre.
+  """
+  if n_beams < 2 or not fov > 0:
+    raise ConfigError(f"R_e needs at least 2 beams over a positive field of view, got {n_beams}, {fov}")
+  step = fov / n_beams if fov >= 2 * math.pi - 1e-6 else fov / (n_beams - 1)
+  spacing = res if dpi_min is None else 1.0 / dpi_min
+  if not spacing > 0:
+    raise ConfigError(f"dpi_min must be > 0 beams per metre, got {dpi_min}")
+  return spacing / math.tan(step)
+
+
 def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
                **overrides) -> SimConfig:
-  """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``."""
+  """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``.
+
+  With a ``preset`` and no ``r_e`` among the overrides, R_e is derived from the lidar by Eq 5-6
+  (:func:`effective_radius`, one beam per cell unless ``dpi_min`` is given; the widest ``fov``
+  of ``params``); without a preset it is ``SimConfig.r_e``'s default unless given.
+  """
+  dpi_min = overrides.pop("dpi_min", None)
+  if preset is not None and "r_e" not in overrides:
+    n_beams = int(overrides.get("n_beams", PRESETS[preset].n_beams))
+    overrides["r_e"] = effective_radius(float(res), float(np.max(np.asarray(params.fov))), n_beams,
+                                        dpi_min)
   r_max = float(np.max(np.asarray(params.r_max)))
   r_robot = float(np.max(np.asarray(params.r_robot)))
   r_u = float(np.max(np.asarray(params.alpha))) * float(overrides.get("r_e", SimConfig.r_e))
@@ -341,6 +408,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
       max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
+      max_loop_cells=max(1, math.ceil(float(np.max(np.asarray(params.loop_radius))) / res - 1e-6)),
   )
   if preset is not None:
     kwargs["n_beams"] = PRESETS[preset].n_beams

@@ -1,8 +1,8 @@
 """Occupancy belief (log-odds), cell entropy, the entropy map, inflation and neighbourhood masks.
 
 Equations are Li et al. 2020's: cell entropy Eq 2, the smoothed entropy map Eq 3, the update radius
-``R_u = α·R_e`` (Eq 7). Neighbourhood sums use shifted slices of a framed array (DESIGN.md: 50x
-faster than a convolution here).
+``R_u = α·R_e`` (Eq 7). Neighbourhood sums use shifted slices of a framed array (measured ~50x
+faster than ``lax.conv_general_dilated`` on XLA:CPU).
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def inflate(mask, radius_cells, max_cells: int):
 
 
 def frontier(free, unknown, occupied):
-  """Belief-free cells with an unknown 8-neighbour (SPEC §4, Yamauchi 1997).
+  """Belief-free cells with an unknown 8-neighbour (Yamauchi 1997).
 
   A diagonal unknown neighbour counts only if at least one of the two cells beside the diagonal
   is not occupied: an unknown cell sealed off by two occupied cells (the inside of a wall corner)

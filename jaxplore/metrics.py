@@ -1,4 +1,5 @@
-"""Per-episode summaries and summaries over seeds (SPEC §5), host side (NumPy/pandas).
+"""Per-episode summaries and summaries over seeds, host side (NumPy/pandas): Li et al. 2020's
+E_r and Std(E_r), times to coverage, Godoy-Calvo et al.'s Tables 3-4 layout.
 
 Curves come from the engine's per-step :class:`jaxplore.sim.Record` (one row per robot and step);
 episodes are one row per robot.
@@ -72,3 +73,89 @@ def summarise(episodes: pd.DataFrame, by, columns) -> pd.DataFrame:
   out = pd.concat(parts, axis=1)
   out.columns = [f"{col}_{stat}" for stat, col in out.columns]
   return out.reset_index()
+
+
+def map_quality(logodds, truth_occupied) -> dict:
+  """SSIM and RMSE of the belief's P(occupied) against the truth (0 free, 1 occupied), over the
+  whole grid (Ahmed et al. Table I's map-quality columns; SSIM by scikit-image, data range 1)."""
+  from skimage.metrics import structural_similarity
+  p = 1.0 / (1.0 + np.exp(-np.asarray(logodds, np.float64)))
+  truth = np.asarray(truth_occupied, np.float64)
+  return {"ssim": float(structural_similarity(p, truth, data_range=1.0)),
+          "rmse": float(np.sqrt(np.mean((p - truth) ** 2)))}
+
+
+def graph_laplacian_sparse(chain_w, loops, loop_w, n_nodes: int, n_loops: int):
+  """The weighted Laplacian (SciPy CSR, float64) of a pose graph's first ``n_nodes`` keyframes."""
+  from scipy import sparse
+  k = np.arange(1, n_nodes)
+  src = np.concatenate([k - 1, np.asarray(loops)[:n_loops, 0]])
+  dst = np.concatenate([k, np.asarray(loops)[:n_loops, 1]])
+  w = np.concatenate([np.asarray(chain_w, np.float64)[1:n_nodes],
+                      np.asarray(loop_w, np.float64)[:n_loops]])
+  adj = sparse.coo_matrix((w, (src, dst)), shape=(n_nodes, n_nodes)).tocsr()
+  adj = adj + adj.T
+  return sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
+
+
+# Above this many keyframes, λ₂ comes from a sparse shift-invert eigensolver instead of a dense one.
+DENSE_EIG_NODES = 600
+
+
+def graph_metrics(chain_w, loops, loop_w, n_nodes: int, n_loops: int,
+                  loops_dropped: int = 0) -> dict:
+  """Ahmed et al. Table I's graph connectivity of one pose graph (host side, float64).
+
+  Returns keyframes, edges, ``lambda2`` (algebraic connectivity of the D-optimality-weighted
+  Laplacian), ``avg_degree`` (2m/n), ``logdet`` (log weighted spanning-tree count, the reduced
+  Laplacian's log-determinant), ``tau_hat`` (``logdet / ((n − 2) ln n)``), ``dopt_mean`` (mean
+  edge D-optimality) and ``loops_dropped``.
+  """
+  from scipy import sparse
+  from scipy.sparse import linalg as splinalg
+  n, m = int(n_nodes), int(n_loops)
+  edges = n - 1 + m
+  lap = graph_laplacian_sparse(chain_w, loops, loop_w, n, m)
+  weights = np.concatenate([np.asarray(chain_w, np.float64)[1:n],
+                            np.asarray(loop_w, np.float64)[:m]])
+  out = {"graph_nodes": n, "graph_edges": edges, "loops_dropped": int(loops_dropped),
+         "avg_degree": 2.0 * edges / n,
+         "dopt_mean": float(weights.mean()) if edges else float("nan")}
+  if n >= 2:
+    lu = splinalg.splu(sparse.csc_matrix(lap[1:, 1:]))
+    out["logdet"] = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
+  else:
+    out["logdet"] = 0.0
+  out["tau_hat"] = out["logdet"] / ((n - 2) * np.log(n)) if n >= 3 else float("nan")
+  if n < 2:
+    out["lambda2"] = float("nan")
+  elif n <= DENSE_EIG_NODES:
+    out["lambda2"] = float(np.linalg.eigvalsh(lap.toarray())[1])
+  else:
+    scale = float(lap.diagonal().max())
+    vals = splinalg.eigsh(sparse.csc_matrix(lap), k=2, sigma=-1e-6 * scale, which="LM",
+                          return_eigenvectors=False)
+    out["lambda2"] = float(np.sort(vals)[1])
+  return out
+
+
+def dopt_range(dopt_mean_curve) -> dict:
+  """Ahmed et al. Table II from one episode's mean edge D-optimality over time: its max, min and
+  ``%R = 100·(max − min)/max`` (steps before the first edge, NaN, are skipped)."""
+  values = np.asarray(dopt_mean_curve, np.float64)
+  values = values[np.isfinite(values)]
+  if values.size == 0:
+    return {"dopt_max": float("nan"), "dopt_min": float("nan"), "dopt_R": float("nan")}
+  hi, lo = float(values.max()), float(values.min())
+  return {"dopt_max": hi, "dopt_min": lo, "dopt_R": 100.0 * (hi - lo) / hi}
+
+
+def map_and_graph_row(logodds, truth_occupied, graph=None, dopt_curve=None) -> dict:
+  """One robot's map-quality columns and, with its final pose graph (NumPy leaves of a
+  :class:`jaxplore.posegraph.PoseGraph`), its connectivity and Table II columns."""
+  row = map_quality(logodds, truth_occupied)
+  if graph is not None:
+    row.update(graph_metrics(graph.chain_w, graph.loops, graph.loop_w, int(graph.n_nodes),
+                             int(graph.n_loops), int(graph.loops_dropped)))
+    row.update(dopt_range([] if dopt_curve is None else dopt_curve))
+  return row

@@ -2,8 +2,8 @@
 
 Li et al. 2020 §"Correction of candidate paths": poses compound with ``⊕`` (Eq 9); the Jacobians
 of the compounding are ``J1`` and ``J2`` (Eq 11–12); odometry noise is ``V_n`` (Eq 16); the
-dead-reckoning covariance follows ``Σ_n = J1 Σ_{n−1} J1ᵀ + J2 V_n J2ᵀ`` (Eq 17). SPEC §1 adds the
-scale factors σ_d, σ_φ and the relocalisation update.
+dead-reckoning covariance follows ``Σ_n = J1 Σ_{n−1} J1ᵀ + J2 V_n J2ᵀ`` (Eq 17). Added here: the
+scale factors σ_d, σ_φ of the odometry noise and a relocalisation (Kalman) update.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def compounding_jacobians(pose_ij, pose_ik):
 
 
 def odometry_covariance(delta_d, delta_phi, sigma_d, sigma_phi):
-  """``V_n = diag((σ_d δd)², (σ_d δd)², (σ_φ δφ)²)`` (Li Eq 16 with SPEC's scale factors)."""
+  """``V_n = diag((σ_d δd)², (σ_d δd)², (σ_φ δφ)²)`` (Li Eq 16 with scale factors σ_d, σ_φ)."""
   sd = (sigma_d * delta_d) ** 2
   return jnp.diag(jnp.stack([sd, sd, (sigma_phi * delta_phi) ** 2]))
 
@@ -86,7 +86,7 @@ def drive_toward(pose, target_xy, v_max, w_max, dt, translate=True) -> Drive:
 
 
 def relocalise(pose_est, cov, pose_true, meas_cov):
-  """Kalman update with a direct pose measurement of covariance R (SPEC §1).
+  """Kalman update with a direct pose measurement of covariance R.
 
   ``Σ ← (Σ⁻¹ + R⁻¹)⁻¹`` and the estimate moves toward the truth by the gain ``K = Σ(Σ + R)⁻¹``.
   """

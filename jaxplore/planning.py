@@ -49,7 +49,9 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
       logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
       unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,
       frontier=mapping.frontier(free, unknown, occupied),
-      blacklist=state.blacklist)
+      blacklist=state.blacklist,
+      pose_graph=(state.graph if planners_base.get_planner(config.planner).needs_pose_graph
+                  else None))
 
 
 def _window_origin(config: SimConfig, cell, side: int):

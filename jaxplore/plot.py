@@ -56,6 +56,36 @@ def belief_map(ax, occupied, logodds, res, origin, curves=None, robots=(0,)):
   ax.set_aspect("equal")
 
 
+def exploration_graph(ax, nodes, edges, lsr=None, open_bins=None, current=None):
+  """An exploration graph (Toriz & Sánchez's REG family) over a map already drawn on ``ax``.
+
+  Args:
+    nodes: float[n, 2] node positions (x, y), m; node 0 (the start) is drawn as a star.
+    edges: int[E, 2] node pairs joined by an edge.
+    lsr: optional float[n, B, 2] each node's local safe region, its bins' ray ends in order.
+    open_bins: optional bool[n, B] bins still on a node's frontier (drawn as red dots at their
+      ray ends).
+    current: optional index of the node the robot is at (circled).
+  """
+  from matplotlib.collections import LineCollection, PolyCollection
+  nodes = np.asarray(nodes, np.float64).reshape(-1, 2)
+  edges = np.asarray(edges, np.int64).reshape(-1, 2)
+  if lsr is not None and len(nodes):
+    lsr = np.asarray(lsr, np.float64)
+    ax.add_collection(PolyCollection(list(lsr), facecolors=(0.2, 0.5, 0.9, 0.06),
+                                     edgecolors=(0.2, 0.5, 0.9, 0.35), linewidths=0.4))
+    if open_bins is not None:
+      ends = lsr[np.asarray(open_bins, bool)]
+      ax.plot(ends[:, 0], ends[:, 1], ".", ms=2, color="tab:red", label="open arcs")
+  if len(edges):
+    ax.add_collection(LineCollection(nodes[edges], colors="tab:green", linewidths=1.0))
+  if len(nodes):
+    ax.plot(nodes[:, 0], nodes[:, 1], "o", ms=3, color="tab:green", label="graph nodes")
+    ax.plot(nodes[0, 0], nodes[0, 1], "*", ms=10, color="tab:orange", label="node 0 (start)")
+    if current is not None and 0 <= current < len(nodes):
+      ax.plot(nodes[current, 0], nodes[current, 1], "o", ms=8, mfc="none", color="tab:purple")
+
+
 def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, label=None):
   """Mean and 10–90 % band of ``y`` over robots, each robot's curve interpolated on a common ``x``
   grid (a finished robot holds its last value)."""

@@ -1,11 +1,15 @@
 """One robot: its state, its reset and its motion step (single-robot pure functions).
 
 The engine batches these with ``vmap`` at the edge. One motion step (:func:`step`): drive toward
-the next waypoint (or turn to the look-at cell) -> dead-reckon the estimate and propagate Σ
+the next waypoint (or turn to the look-at cell), unless the robot's disc at that waypoint would
+touch an occupied cell of the truth that its belief does not hold as occupied (a collision: the
+robot stays, its path ends, and the cells it touched become occupied in its belief, as a bumper
+would tell it; walls it already knows are the planner's to avoid, by inflation) -> dead-reckon the estimate and propagate Σ
 (Li et al. 2020, Eq 16-17) -> scan the truth from the true pose -> relocalise if the scan ends on
 enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> update
-Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the planner's step
-hook (only when it has one) -> metrics -> termination.
+Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SLAM pose graph
+(keyframes and loop closures, :mod:`jaxplore.posegraph`; only when the run keeps one) -> the
+planner's step hook (only when it has one) -> metrics -> termination.
 
 Time spent waiting is not mission time (``time`` counts only steps in which the robot moved or
 turned; ``idle_steps`` counts the others: one per arrival, plus any wait of a robot with nothing
@@ -20,7 +24,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import mapping, motion, sensor
+from jaxplore import mapping, motion, posegraph, sensor
 from jaxplore.config import Params, SimConfig
 from jaxplore.planners import base as planners_base
 from jaxplore.world import World, cell_centre, cell_of, sample_start, to_cells
@@ -47,7 +51,10 @@ class State:
     time: f32 mission time (s); distance: f32 (m).
     entropy: f32 map entropy Σ Ĥ(c) over the grid (nats). covered: f32 reachable cells known free.
     done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
+    collisions: i32 steps in which the robot's disc would have touched an occupied cell.
     memory: the planner's per-robot memory (a pytree; ``()`` for a planner without one).
+    graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`), or None when
+      ``SimConfig.graph_nodes`` is 0.
   """
 
   key: chex.Array
@@ -73,7 +80,9 @@ class State:
   covered: chex.Array
   done: chex.Array
   reason: chex.Array
+  collisions: chex.Array
   memory: Any = ()
+  graph: Any = None
 
 
 @chex.dataclass(frozen=True)
@@ -89,6 +98,10 @@ class Record:
   x: chex.Array  # true position, m
   y: chex.Array
   done: chex.Array  # bool
+  # With a pose graph (else None): keyframes, edges and the mean edge D-optimality (NaN: no edge).
+  graph_nodes: Any = None
+  graph_edges: Any = None
+  dopt_mean: Any = None
 
 
 def keeps_entropy_map(config: SimConfig) -> bool:
@@ -208,8 +221,11 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       steps=jnp.int32(0), idle_steps=jnp.int32(0), since_plan=jnp.int32(0), busy=jnp.bool_(False),
       time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
-      done=jnp.bool_(False), reason=jnp.int32(RUNNING),
-      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config), params))
+      done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
+      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config),
+                                                                      params),
+      graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes
+             else None))
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
   return _check_complete(world, params, state)
 
@@ -221,10 +237,75 @@ def _check_complete(world: World, params: Params, state: State) -> State:
 
 
 def record(world: World, state: State) -> Record:
+  graph = {}
+  if state.graph is not None:
+    g = state.graph
+    edges = g.n_nodes - 1 + g.n_loops
+    total = jnp.sum(g.chain_w) + jnp.sum(g.loop_w)
+    graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
+                 dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
                 coverage=state.covered / world.n_reachable, det_cov=jnp.linalg.det(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
-                x=state.pose[0], y=state.pose[1], done=state.done)
+                x=state.pose[0], y=state.pose[1], done=state.done, **graph)
+
+
+def touched_cells(config: SimConfig, world: World, params: Params, xy):
+  """The cells around ``xy`` and which of them the robot's disc there would touch: occupied in
+  the truth (outside the map counts as occupied) with their centre closer than ``r_robot``.
+
+  Centre distances, as the planner's inflation measures them (:func:`mapping.inflate`), so a
+  path the belief inflates correctly never collides. Returns (i32[K, 2] cells, bool[K]).
+  """
+  k = config.max_inflation_cells + 1
+  span = jnp.arange(-k, k + 1)
+  offsets = jnp.stack(jnp.meshgrid(span, span, indexing="ij"), axis=-1).reshape(-1, 2)
+  cells = cell_of(xy, world.origin, config.res)[None, :] + offsets
+  occupied = world.occupied.at[cells[:, 0], cells[:, 1]].get(
+      mode="fill", fill_value=True, wrap_negative_indices=False)
+  centres = cell_centre(cells.T, world.origin, config.res)
+  distance = jnp.sqrt(jnp.sum((centres - xy[:, None]) ** 2, axis=0))
+  return cells, occupied & (distance < params.r_robot)
+
+
+def _in_belief_frame(config: SimConfig, world: World, state: State, cells):
+  """Truth cells where the robot's estimated pose puts them (shifted by its cell error)."""
+  shift = (cell_of(state.pose_est[:2], world.origin, config.res) -
+           cell_of(state.pose[:2], world.origin, config.res))
+  return cells + shift[None, :]
+
+
+def _believed_occupied(config: SimConfig, world: World, params: Params, state: State, cells):
+  """Whether the robot's belief holds each truth cell as occupied (outside the map: yes)."""
+  cells = _in_belief_frame(config, world, state, cells)
+  logodds = state.logodds.at[cells[:, 0], cells[:, 1]].get(
+      mode="fill", fill_value=jnp.inf, wrap_negative_indices=False)
+  return logodds > mapping.logit(params.p_occ)
+
+
+def _feel_collision(config: SimConfig, world: World, params: Params, state: State, cells, felt):
+  """The cells the robot bumped into (``felt``) become occupied in its belief, placed where its
+  estimated pose puts them. A contact is certain, unlike a scan: their log-odds go to ``l_max``
+  whatever the belief held (one ``l_occ`` would leave a cell believed free still free). Map
+  entropy and coverage follow."""
+  h, w = config.height, config.width
+  cells = _in_belief_frame(config, world, state, cells)
+  inside = (cells[:, 0] >= 0) & (cells[:, 0] < h) & (cells[:, 1] >= 0) & (cells[:, 1] < w)
+  felt = felt & inside
+  rows = jnp.where(felt, cells[:, 0], h)  # row h is dropped by the scatter
+  old = state.logodds.at[cells[:, 0], cells[:, 1]].get(mode="fill", fill_value=0.0,
+                                                       wrap_negative_indices=False)
+  new = jnp.broadcast_to(params.l_max, old.shape)
+  logodds = state.logodds.at[rows, cells[:, 1]].set(new, mode="drop", wrap_negative_indices=False)
+  free_threshold = mapping.logit(params.p_free)
+  reachable = world.reachable.at[cells[:, 0], cells[:, 1]].get(mode="fill", fill_value=False,
+                                                               wrap_negative_indices=False)
+  d_entropy = jnp.sum(jnp.where(felt, mapping.entropy_of_logodds(new) -
+                                mapping.entropy_of_logodds(old), 0.0))
+  d_covered = jnp.sum(jnp.where(felt & reachable, (new < free_threshold).astype(jnp.float32) -
+                                (old < free_threshold).astype(jnp.float32), 0.0))
+  return state.replace(logodds=logodds, entropy=state.entropy + d_entropy,
+                       covered=state.covered + d_covered)
 
 
 def step(config: SimConfig, world: World, params: Params, state: State) -> tuple[State, Record]:
@@ -244,29 +325,50 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
   drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
                               translate=has_waypoint)
-  busy = running & (has_waypoint | (look_needed & (jnp.abs(drive.delta_phi) > 1e-6)))
+  touched, touching = touched_cells(config, world, params, target_xy)
+  touching = touching & ~_believed_occupied(config, world, params, state, touched)
+  collided = running & has_waypoint & (drive.delta_d > 0) & jnp.any(touching)
+  path_len = jnp.where(collided, state.path_idx, path_len)
+  has_waypoint = has_waypoint & ~collided
+  busy = running & ~collided & (
+      has_waypoint | (look_needed & (jnp.abs(drive.delta_phi) > 1e-6)))
   delta_d = jnp.where(busy, drive.delta_d, 0.0)
   delta_phi = jnp.where(busy, drive.delta_phi, 0.0)
   pose = jnp.where(busy, drive.pose, state.pose)
   path_idx = state.path_idx + (busy & has_waypoint & drive.arrived).astype(jnp.int32)
 
-  # Odometry: the estimate is dead-reckoned from the (possibly noisy) increment; Σ by Eq 17.
+  # Odometry: the estimate is dead-reckoned from the (possibly noisy) increment; Σ by Eq 17
+  # with Li's planning model V_n, the simulated error from the odometry noise parameters.
   odo = motion.increment(delta_d, delta_phi)
   v_n = motion.odometry_covariance(delta_d, delta_phi, params.sigma_d, params.sigma_phi)
   if config.pose_noise:
-    odo = odo + jnp.sqrt(jnp.diag(v_n)) * jax.random.normal(k_noise, (3,))
+    error_std = jnp.stack([params.odom_noise_d * jnp.abs(delta_d),
+                           params.odom_noise_d * jnp.abs(delta_d),
+                           params.odom_noise_phi * jnp.abs(delta_phi)])
+    odo = odo + error_std * jax.random.normal(k_noise, (3,))
   pose_est = motion.compound(state.pose_est, odo)
   cov = motion.propagate_covariance(state.cov, state.pose_est, pose_est, v_n)
   if not config.pose_noise:
     pose_est = pose
 
+  state = _feel_collision(config, world, params, state, touched, touching & collided)
   state = state.replace(key=key, pose=pose, pose_est=pose_est, cov=cov, path_len=path_len,
                         path_idx=path_idx, steps=state.steps + running.astype(jnp.int32),
                         idle_steps=state.idle_steps + (running & ~busy).astype(jnp.int32),
                         since_plan=state.since_plan + 1, busy=busy,
                         time=state.time + jnp.where(busy, params.dt, 0.0),
-                        distance=state.distance + delta_d)
+                        distance=state.distance + delta_d,
+                        collisions=state.collisions + collided.astype(jnp.int32))
   state = _sense(config, world, params, state, k_sense, busy)
+  if config.graph_nodes:
+    # Keyframes at the estimate after relocalisation; odometry edges with the covariance of the
+    # simulated odometry error (Eq 16's form, not Li's planning scale); line of sight in the updated
+    # belief, sampled at most half a cell apart (loop_radius <= max_loop_cells * res).
+    odometry_cov = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
+                                              params.odom_noise_phi)
+    state = state.replace(graph=posegraph.observe(
+        state.graph, state.pose_est, odometry_cov, motion.increment(delta_d, delta_phi), busy,
+        state.logodds, world.origin, res, params, 2 * config.max_loop_cells + 2))
   spec = planners_base.get_planner(config.planner)
   if spec.step_hook is not None:
     memory = spec.step_hook(planner_context(config), params, state.memory,

@@ -56,7 +56,8 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
   labels, count = ndimage.label(free)
   if count == 0:
     raise ConfigError(f"map {grid.name!r} has no free cell")
-  clearance = ndimage.distance_transform_edt(free)  # cells, centre to nearest occupied centre
+  # Cells, centre to the nearest occupied centre; outside the map counts as occupied.
+  clearance = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1]
   radius = r_robot / grid.res
   if start_xy is not None:
     i, j = grid.world_to_cell(start_xy[0], start_xy[1])

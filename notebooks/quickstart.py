@@ -35,7 +35,7 @@ import pandas as pd
 import jaxplore
 from jaxplore import plot
 from jaxplore.maps import generate
-from jaxplore.runner import summary_table
+from jaxplore.results import summary_table
 
 TINY = os.environ.get("JAXPLORE_NOTEBOOK_TINY", "") not in ("", "0")
 OUT = Path(os.environ.get("JAXPLORE_NOTEBOOK_OUT", "runs/notebooks")) / "quickstart"

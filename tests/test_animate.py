@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 import jaxplore
-from jaxplore import animate, cli
+from jaxplore import animate, cli, sweeps
 from jaxplore.config import ConfigError
 from jaxplore.maps import generate
 
@@ -112,10 +112,11 @@ def test_replay_of_sweep_rows_reproduces_them(sweep_dir):
 def test_sweep_robots_of_different_groups_are_refused(sweep_dir, tmp_path):
   copy = tmp_path / "copy"
   shutil.copytree(sweep_dir, copy)
-  plan = json.loads((copy / "sweep_plan.json").read_text())
-  group = plan["groups"][0]
-  plan["groups"] = [dict(group, rows=group["rows"][:1]), dict(group, planner="frt", rows=group["rows"][1:])]
-  (copy / "sweep_plan.json").write_text(json.dumps(plan))
+  made = json.loads((copy / sweeps.SCHEDULE_FILE).read_text())
+  group = made["groups"][0]
+  made["groups"] = [dict(group, rows=group["rows"][:1]),
+                    dict(group, planner="frt", rows=group["rows"][1:])]
+  (copy / sweeps.SCHEDULE_FILE).write_text(json.dumps(made))
   with pytest.raises(ConfigError, match="different world x planner groups.*robot 1: tiny_office / frt"):
     animate.resimulate(copy, (0, 1), progress=False)
 

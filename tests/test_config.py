@@ -1,11 +1,51 @@
-"""Static configuration: the execution strategy and its automatic default."""
+"""Li's effective radius R_e from the lidar (Eq 5-6), and where config_for uses it; the
+execution strategy and its automatic default."""
 
 import dataclasses
+import math
 
 import jax
+import numpy as np
 import pytest
 
-from jaxplore.config import STRATEGIES, ConfigError, SimConfig, resolve_strategy
+from jaxplore.config import (STRATEGIES, ConfigError, SimConfig, config_for, effective_radius,
+                             make_params, resolve_strategy)
+
+
+def eq6_by_search(spacing, beam_step):
+  """The largest D with S_dpi(D) = 1 / (D·tan θ) > dpi_min = 1 / spacing, by bisection on Eq 5."""
+  lo, hi = 0.0, 1e4
+  for _ in range(200):
+    mid = 0.5 * (lo + hi)
+    lo, hi = (mid, hi) if 1.0 / (mid * math.tan(beam_step)) > 1.0 / spacing else (lo, mid)
+  return lo
+
+
+def test_effective_radius_is_eq6s_largest_distance():
+  li_step = math.radians(190) / 189  # Li's simulated 15 m / 190° laser, 190 beams
+  for res in (0.05, 0.1, 0.2):
+    np.testing.assert_allclose(effective_radius(res, math.radians(190), 190),
+                               eq6_by_search(res, li_step), rtol=1e-9)
+  # Li's Table 1 maps are 0.05 m/cell: R_e ≈ 2.85 m; on this project's 0.1 m maps ≈ 5.70 m.
+  assert effective_radius(0.05, math.radians(190), 190) == pytest.approx(2.849, abs=1e-3)
+  assert effective_radius(0.1, math.radians(190), 190) == pytest.approx(5.698, abs=1e-3)
+  # a full circle does not repeat its first beam: 360 beams are 1° apart
+  np.testing.assert_allclose(effective_radius(0.1, 2 * math.pi, 360),
+                             eq6_by_search(0.1, math.radians(1.0)), rtol=1e-9)
+  # dpi_min: 20 beams per metre = one beam per 0.05 m
+  assert effective_radius(0.1, math.radians(190), 190, dpi_min=20.0) == pytest.approx(2.849, abs=1e-3)
+  with pytest.raises(ConfigError):
+    effective_radius(0.1, math.radians(190), 1)
+
+
+def test_config_for_derives_r_e_from_the_preset_unless_given():
+  params = make_params("li2020", res=0.1)
+  derived = config_for((50, 60), 0.1, params, preset="li2020")
+  assert derived.r_e == pytest.approx(5.698, abs=1e-3)
+  assert derived.max_update_radius_cells == math.ceil(1.5 * derived.r_e / 0.1 - 1e-6)
+  assert config_for((50, 60), 0.1, params, preset="li2020", r_e=0.75).r_e == 0.75
+  assert config_for((50, 60), 0.1, params, preset="li2020", dpi_min=20.0).r_e == pytest.approx(2.849, abs=1e-3)
+  assert config_for((50, 60), 0.1, params).r_e == SimConfig.r_e  # no preset: the default
 
 
 def test_auto_strategy_is_per_robot_on_cpu_and_lockstep_on_accelerators():

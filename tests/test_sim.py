@@ -166,7 +166,8 @@ def test_step_eager_equals_jit():
 
 
 def test_pose_noise_drifts_and_relocalisation_bounds_it(rooms):
-  config, world, params = setup(rooms, max_steps=120, pose_noise=True, sigma_d=0.2, sigma_phi=0.2)
+  config, world, params = setup(rooms, max_steps=120, pose_noise=True, odom_noise_d=0.2,
+                                odom_noise_phi=0.2)
   starts = jnp.tile(jnp.asarray([1.5, 2.0, 0.0]), (ROBOTS, 1))
   keys = jax.random.split(jax.random.PRNGKey(5), ROBOTS)
   _, records = sim.rollout(config, world, params, keys, starts)

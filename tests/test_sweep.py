@@ -5,6 +5,7 @@ Every compute here is a 40 x 40 world (``open`` at 0.5 m) for 30 steps; the sett
 ``SETTINGS`` are shared so that in-process sweeps reuse one compiled program.
 """
 
+import dataclasses
 import json
 import os
 import shutil
@@ -19,7 +20,9 @@ import pandas as pd
 import pytest
 
 import jaxplore
-from jaxplore import cli, runner, sweeps
+from jaxplore import cli, memory, runner, sweeps
+from jaxplore.runspec import RunSpec
+from jaxplore.sweeps import execute, schedule, settings
 from jaxplore.config import ConfigError
 
 REPO = Path(jaxplore.__file__).resolve().parents[1]
@@ -43,11 +46,10 @@ def reference(tmp_path_factory):
   """The uninterrupted sweep: 8 rows in chunks of 3 (the last padded), compiles counted by a
   JAX monitoring listener of the test's own."""
   import jax.monitoring
-  from jax._src import dispatch
   compiled = []
 
   def listener(event, duration, **kwargs):
-    if event == dispatch.BACKEND_COMPILE_EVENT:
+    if event == "/jax/core/compile/backend_compile_duration":
       compiled.append(str(kwargs.get("fun_name")))
 
   jax.monitoring.register_event_duration_secs_listener(listener)
@@ -68,7 +70,7 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
   advance = [name for name in compiled if "advance" in name]
   assert len(advance) == 1, compiled  # three chunks, one compile of the engine
   assert result.timing["compiles"] == 1 and result.timing["chunks"] == 3
-  plan = json.loads((out / sweeps.PLAN_FILE).read_text())
+  plan = json.loads((out / sweeps.SCHEDULE_FILE).read_text())
   assert plan["groups"][0]["chunk_size"] == 3 and plan["n_chunks"] == 3
   assert [r["row"] for r in plan["groups"][0]["rows"]] == list(range(8))
   for k in range(3):
@@ -105,7 +107,7 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
 def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkeypatch):
   _, ref_out, _ = reference
   out = tmp_path / "cut"
-  real = sweeps._run_chunk
+  real = execute.run_chunk
   calls = []
 
   def interrupt_second_chunk(*args, **kwargs):
@@ -114,10 +116,10 @@ def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkey
       raise KeyboardInterrupt
     return real(*args, **kwargs)
 
-  monkeypatch.setattr(sweeps, "_run_chunk", interrupt_second_chunk)
+  monkeypatch.setattr(execute, "run_chunk", interrupt_second_chunk)
   with pytest.raises(KeyboardInterrupt, match="--resume"):
     jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
-  monkeypatch.setattr(sweeps, "_run_chunk", real)
+  monkeypatch.setattr(execute, "run_chunk", real)
   assert (out / "chunks" / "chunk_00000.parquet").exists()
   assert not (out / "chunks" / "chunk_00001.parquet").exists()
   assert not (out / "episodes.parquet").exists()
@@ -135,17 +137,37 @@ def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkey
   pd.testing.assert_frame_equal(again.episodes, _tables(ref_out)[0])
 
 
+def test_a_folder_of_the_older_layout_resumes(reference, tmp_path):
+  """Folders written before the schedule was renamed hold ``sweep_plan.json`` (its run settings
+  without the newer ones): they resume into the same tables."""
+  _, ref_out, _ = reference
+  old = tmp_path / "old"
+  shutil.copytree(ref_out, old)
+  made = json.loads((old / sweeps.SCHEDULE_FILE).read_text())
+  made["format"] = "jaxplore-sweep-plan"
+  del made["spec"]["run"]["plan_window"]
+  (old / sweeps.LEGACY_FILE).write_text(json.dumps(made))
+  (old / sweeps.SCHEDULE_FILE).unlink()
+  for path in [old / "episodes.parquet", old / "curves.parquet", *old.glob("chunks/chunk_00002*")]:
+    path.unlink()
+  resumed = jaxplore.sweep(resume=old, progress=False, quiet=True, devices=1)
+  assert resumed.timing["chunks_run"] == 1 and resumed.timing["chunks_skipped"] == 2
+  for mine, theirs in zip(_tables(old), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs)
+
+
 KILLABLE = textwrap.dedent("""
     # jaxplore sweep, with the second chunk held back so that SIGKILL lands while it is pending
     import sys, time
-    from jaxplore import cli, sweeps
-    real, calls = sweeps._run_chunk, []
+    from jaxplore import cli
+    from jaxplore.sweeps import execute
+    real, calls = execute.run_chunk, []
     def held(*args, **kwargs):
       calls.append(1)
       if len(calls) == 2:
         time.sleep(600)
       return real(*args, **kwargs)
-    sweeps._run_chunk = held
+    execute.run_chunk = held
     sys.exit(cli.main(sys.argv[1:]))
 """)
 
@@ -235,9 +257,8 @@ def test_toml_random_search_and_several_planners(reference, tmp_path):
   assert config["groups"][0]["fixed_planner_params"]["k2"] == pytest.approx(0.8)
   assert (tmp_path / "toml" / "sweep.png").exists()
   # the points come from the seed: the same file plans the same points
-  again = sweeps.make_spec(None, sweeps.load_config(toml)["random"], 2, 7, [0], "open", "li2020",
-                           {}, None, {})
-  drawn = sweeps.random_samples(again["random"], 2, 7)
+  again = sweeps.make_spec(None, sweeps.load_config(toml)["random"], 2, 7, [0], "open", "li2020")
+  drawn = settings.random_samples(again.random, 2, 7)
   assert sorted(li.alpha.unique()) == sorted(a for a, _ in drawn)
 
 
@@ -276,12 +297,13 @@ def test_cli_errors_are_one_clear_line(tmp_path, capsys):
 
 
 def test_resume_refuses_a_missing_or_corrupt_plan(tmp_path):
-  with pytest.raises(ConfigError, match="holds no sweep_plan.json"):
+  with pytest.raises(ConfigError, match=f"holds no {sweeps.SCHEDULE_FILE}"):
     jaxplore.sweep(resume=tmp_path, progress=False)
-  (tmp_path / sweeps.PLAN_FILE).write_text("{not json")
+  (tmp_path / sweeps.SCHEDULE_FILE).write_text("{not json")
   with pytest.raises(ConfigError, match="corrupt"):
     jaxplore.sweep(resume=tmp_path, progress=False)
-  (tmp_path / sweeps.PLAN_FILE).write_text(json.dumps({"format": sweeps.PLAN_FORMAT, "version": 1}))
+  (tmp_path / sweeps.SCHEDULE_FILE).write_text(json.dumps({"format": schedule.SCHEDULE_FORMAT,
+                                                             "version": 1}))
   with pytest.raises(ConfigError, match="corrupt"):
     jaxplore.sweep(resume=tmp_path, progress=False)
 
@@ -290,7 +312,7 @@ def test_a_folder_holding_another_sweep_or_other_files_is_refused(reference, tmp
   _, ref_out, _ = reference
   other = tmp_path / "other"
   other.mkdir()
-  shutil.copy(ref_out / sweeps.PLAN_FILE, other / sweeps.PLAN_FILE)
+  shutil.copy(ref_out / sweeps.SCHEDULE_FILE, other / sweeps.SCHEDULE_FILE)
   with pytest.raises(ConfigError, match=r"different sweep.*grid.*--resume"):
     jaxplore.sweep({"alpha": [1.0, 3.0]}, seeds=2, out=other, **SETTINGS)
   with pytest.raises(ConfigError, match="different sweep.*seeds"):
@@ -298,26 +320,28 @@ def test_a_folder_holding_another_sweep_or_other_files_is_refused(reference, tmp
   busy = tmp_path / "busy"
   busy.mkdir()
   (busy / "notes.txt").write_text("mine")
-  with pytest.raises(ConfigError, match="not empty and holds no sweep plan"):
+  with pytest.raises(ConfigError, match="not empty and holds no sweep schedule"):
     jaxplore.sweep(GRID, seeds=2, out=busy, **SETTINGS)
+  with pytest.raises(ConfigError, match="is a file"):
+    jaxplore.sweep(GRID, seeds=2, out=busy / "notes.txt", **SETTINGS)
 
 
 def test_memory_guard_shrinks_a_chunk_or_refuses_with_the_numbers(monkeypatch, capsys):
   _, config, _, _ = runner.prepare("open", "li2020", 8, res=0.5, max_steps=30, replan_every=5,
                                    params={"r_max": 2.0})
-  one, eight = runner.estimate_bytes(config, 1), runner.estimate_bytes(config, 8)
+  one, eight = memory.estimate_bytes(config, 1), memory.estimate_bytes(config, 8)
   # room for a chunk of two robots but not eight
-  room = int(runner.estimate_bytes(config, 2) / sweeps.MEMORY_FRACTION) + 1
-  monkeypatch.setattr(runner, "available_bytes", lambda: room)
-  assert runner.estimate_bytes(config, 3) > sweeps.MEMORY_FRACTION * room
+  room = int(memory.estimate_bytes(config, 2) / sweeps.MEMORY_FRACTION) + 1
+  monkeypatch.setattr(memory, "available_bytes", lambda: room)
+  assert memory.estimate_bytes(config, 3) > sweeps.MEMORY_FRACTION * room
   assert sweeps.fit_chunk(config, 8) == 2
   err = capsys.readouterr().err
   assert "chunk of 8 robots" in err and "40x40" in err and f"({eight} bytes)" in err
   assert "running chunks of 2 robots instead" in err
-  with pytest.raises(ConfigError, match="the plan's chunks of 8"):
+  with pytest.raises(ConfigError, match="the schedule's chunks of 8"):
     sweeps.fit_chunk(config, 8, fixed=True)
   # not even one robot: refused before any compute, naming bytes, grid and robots
-  monkeypatch.setattr(runner, "available_bytes", lambda: one)
+  monkeypatch.setattr(memory, "available_bytes", lambda: one)
   with pytest.raises(ConfigError, match=rf"one robot on a 40x40 grid .*\({one} bytes\).*available"):
     jaxplore.sweep(GRID, seeds=2, **SETTINGS)
   with pytest.raises(ConfigError, match="one robot"):
@@ -340,17 +364,17 @@ def test_bad_sweep_arguments_are_refused_before_compute():
 
 
 def test_r_e_fixes_a_shape_so_each_value_is_its_own_group():
-  """li2020 refuses a batch mixing r_e values (its gain kernel's shape); the plan splits them."""
+  """A batch takes one r_e (li2020's gain kernel's shape); the schedule splits its values."""
   spec = sweeps.make_spec({"r_e": [0.5, 1.0], "alpha": [1.0, 2.0]}, None, None, 0, [0, 1], "open",
-                          ["li2020", "nearest_frontier"], {"res": 0.5, "max_steps": 30}, None, {})
-  groups = sweeps._build_groups(spec)
-  assert [(g["planner"], len(g["rows"])) for g in groups] == [("li2020", 4), ("li2020", 4),
-                                                               ("nearest_frontier", 4),
-                                                               ("nearest_frontier", 4)]
-  assert [r["row"] for g in groups for r in g["rows"]] == list(range(16))
+                          ["li2020", "nearest_frontier"], RunSpec(res=0.5, max_steps=30))
+  groups = schedule.split_groups(spec)
+  assert [(g.planner, len(g.rows)) for g in groups] == [("li2020", 4), ("li2020", 4),
+                                                         ("nearest_frontier", 4),
+                                                         ("nearest_frontier", 4)]
+  assert [r.row for g in groups for r in g.rows] == list(range(16))
   for g in groups:
-    assert len({r["values"][0] for r in g["rows"]}) == 1  # one r_e per group
-    sweeps._resolve_group(spec, g, None, {})  # validates: each group is a legal batch
-  mixed = dict(groups[0], rows=groups[0]["rows"] + groups[1]["rows"])
+    assert len({r.values[0] for r in g.rows}) == 1  # one r_e per group
+    schedule.resolve_group(spec, g, None, {})  # validates: each group is a legal batch
+  mixed = dataclasses.replace(groups[0], rows=groups[0].rows + groups[1].rows)
   with pytest.raises(ConfigError, match="r_e"):
-    sweeps._resolve_group(spec, mixed, None, {})
+    schedule.resolve_group(spec, mixed, None, {})

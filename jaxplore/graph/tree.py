@@ -1,6 +1,6 @@
 """Quantities along every root path of a predecessor tree at once, by pointer jumping.
 
-A shortest-path tree from one Dijkstra holds every candidate path (DESIGN.md). Summing a value
+A shortest-path tree from one Dijkstra holds every candidate path. Summing a value
 along the path from the root to *every* node, or finding each node's nearest ancestor with a
 property, takes O(log depth) rounds of gathers: after round r every node knows the sum over its
 2^r nearest path nodes and points at its 2^r-th ancestor.

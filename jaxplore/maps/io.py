@@ -13,7 +13,7 @@ A ``map_server`` map is a YAML file that names an image (PGM or PNG) and says ho
 Each pixel's grey value ``v`` (the mean of R, G and B for colour images; alpha is ignored) gives
 ``p = (255 - v) / 255`` (``v / 255`` with ``negate``). The pixel is free if ``p < free_thresh``,
 occupied if ``p > occupied_thresh`` and unknown otherwise. Unknown pixels are occupied in the
-ground truth (SPEC §1): some maps draw their walls in the unknown band (willow).
+ground truth: some maps draw their walls in the unknown band (willow).
 """
 
 from __future__ import annotations

@@ -70,6 +70,8 @@ class BeliefView:
     traversable: bool[H, W] free cells clear of occupied cells by the robot radius.
     frontier: bool[H, W] free cells next to unknown ones (see :func:`mapping.frontier`).
     blacklist: bool[H, W] goals the engine found unresolvable for this robot.
+    pose_graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`); None unless
+      the planner registered ``needs_pose_graph``.
   """
 
   logodds: chex.Array
@@ -81,6 +83,7 @@ class BeliefView:
   traversable: chex.Array
   frontier: chex.Array
   blacklist: chex.Array
+  pose_graph: Any = None
 
 
 @chex.dataclass(frozen=True)
@@ -137,6 +140,8 @@ class PlannerSpec:
       ``validate(weights: dict[str, np.ndarray], params, ctx) -> None``, raising ``ConfigError``.
     needs_entropy_map: the planner reads Li et al.'s entropy map I_e (Eq 1-3); the engine keeps
       it only for such planners.
+    needs_pose_graph: the planner reads the robot's SLAM pose graph (``view.pose_graph``); the
+      engine keeps one for such planners (for the others only when asked, for its metrics).
     init_memory: ``init_memory(ctx, params) -> memory`` for a planner with per-robot memory.
     commits: the robot drives to its chosen goal before the planner decides again (it replans
       only when its path is done or blocked, never every ``replan_every`` steps).
@@ -158,6 +163,7 @@ class PlannerSpec:
   settings: Any = None
   validate: Callable | None = None
   needs_entropy_map: bool = False
+  needs_pose_graph: bool = False
   init_memory: Callable | None = None
   commits: bool = False
   step_hook: Callable | None = None
@@ -227,7 +233,8 @@ _REGISTRY: dict[str, PlannerSpec] = {}
 
 def register(name: str, defaults: dict | None = None, summary: str = "", *, settings=None,
              validate: Callable | None = None, needs_entropy_map: bool = False,
-             init_memory: Callable | None = None, commits: bool = False,
+             needs_pose_graph: bool = False, init_memory: Callable | None = None,
+             commits: bool = False,
              step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
              windowed: bool = False):
   """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`)."""
@@ -238,7 +245,8 @@ def register(name: str, defaults: dict | None = None, summary: str = "", *, sett
   def wrap(fn):
     _REGISTRY[name] = PlannerSpec(
         name=name, plan=fn, defaults=dict(defaults or {}), summary=summary, settings=settings,
-        validate=validate, needs_entropy_map=needs_entropy_map, init_memory=init_memory,
+        validate=validate, needs_entropy_map=needs_entropy_map, needs_pose_graph=needs_pose_graph,
+        init_memory=init_memory,
         commits=commits, step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival,
         windowed=windowed)
     return fn

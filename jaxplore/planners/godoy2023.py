@@ -25,9 +25,10 @@ Units and the paper's ambiguities (decisions):
   resolution.
 * Entropy is in bits (log2): Eq 1 leaves the base open; the authors' released code
   (Godoy-Calvo et al. 2022, ``frontier_search.cpp``) uses ``log2``.
-* ``D`` is in metres; its default, 5.5 m, is the authors' released ``expected_radius`` (the
-  Husky's lidar range) and is what makes ``I`` of the order of Table 1 (thousands of bits for a
-  few metres of frontier at 0.05 m). Figure 1 illustrates Eq 4 with ``D`` = 5 cells.
+* ``D`` is in metres. Its default, 5.5 m, is the Husky's lidar range (the ``godoy_open``
+  preset), not a value the authors released: their launch files set ``expected_radius`` to 0.3,
+  0.4 or 2 m. 5.5 m is what makes ``I`` of the order of Table 1 (thousands of bits for a few
+  metres of frontier at 0.05 m). Figure 1 illustrates Eq 4 with ``D`` = 5 cells.
 * Distances inside Algorithm 1 are Manhattan distances in cells, ``P = min(d / (2D), 0.5)`` with
   ``d`` and ``D`` in the same unit (Figure 1: frontier cells 0, then 0.1 per cell for D = 5), and
   a cell is in the neighbourhood when ``d ≤ D`` (Algorithm 1's test).
@@ -42,12 +43,17 @@ Units and the paper's ambiguities (decisions):
   cluster's own cells are free), guarded anyway.
 * ``d_path`` (not in the paper; default 0): 1 replaces the Euclidean ``d`` by the Dijkstra path
   cost to the candidate. With Euclidean ``d`` and the engine's frequent replanning (every
-  ``replan_every`` steps, about 1 s, where the authors' explorer replanned at 0.1 Hz) a robot
-  whose path to the best goal first detours away from it can oscillate forever between two
-  far goals of nearly equal cost: each step along one path raises that goal's Euclidean
-  distance and lowers the other's. With the path cost a step along the chosen path lowers its
-  cost by the step and raises any other by at most the step, so the choice stands until the
-  information terms change.
+  ``replan_every`` steps, about 1 s; the authors' explorer replanned at ``planner_frequency``
+  0.33 Hz, every 3 s, and at once on arrival) a robot whose path to the best goal first detours
+  away from it can oscillate forever between two far goals of nearly equal cost: each step along
+  one path raises that goal's Euclidean distance and lowers the other's. With the path cost a
+  step along the chosen path lowers its cost by the step and raises any other by at most the
+  step, so the choice stands until the information terms change.
+* The authors' code (``frontier_search.cpp``) departs from the paper in two ways offered here:
+  it drops frontiers shorter than ``min_frontier_size`` (frontier cells x resolution; released
+  value 0.5 m, the default here; 0 keeps every cluster), and it measures ``d`` from the robot to
+  the frontier's cell nearest to it (``d_nearest`` = 1; default 0, the paper's distance to the
+  candidate). A dropped cluster is no candidate and, for IG, claims no neighbourhood cells.
 
 Plan fields: ``gain`` is the utility the planner maximised, ``−U'`` (Frt) or ``−U`` (IG); ``cost``
 is the Dijkstra path cost to the goal (m); ``n_candidates`` the clusters with a candidate goal.
@@ -72,8 +78,12 @@ from jaxplore.planners.frontier import plan_to, reachable_paths
 MAX_CLUSTERS = 128
 
 # d_path = 0: d is the Euclidean distance (the paper); 1: the path cost (see the module docstring).
-FRT_DEFAULTS = {"C_d": 10.0, "C_i": 1.0, "d_path": 0.0}
-IG_DEFAULTS = {"C_d": 10.0, "C_i": 0.01, "k_f": 10.0, "D": 5.5, "d_path": 0.0}
+# d_nearest = 1: the Euclidean d is measured to the cluster's nearest cell (the authors' code).
+# min_frontier_size: clusters shorter than this (m, cells x res) are no candidates (their code's
+# released value, 0.5 m; 0 keeps every cluster).
+FRT_DEFAULTS = {"C_d": 10.0, "C_i": 1.0, "d_path": 0.0, "d_nearest": 0.0, "min_frontier_size": 0.5}
+IG_DEFAULTS = {"C_d": 10.0, "C_i": 0.01, "k_f": 10.0, "D": 5.5, "d_path": 0.0, "d_nearest": 0.0,
+               "min_frontier_size": 0.5}
 
 
 class Candidates(NamedTuple):
@@ -84,8 +94,9 @@ class Candidates(NamedTuple):
     goal: i32[K, 2] the cell to drive to (centroid or nearest reachable cluster cell).
     look_at: i32[K, 2] the cluster cell nearest to the centroid that the robot can reach (or
       the goal), whose unknown neighbour the robot faces on arrival.
-    valid: bool[K] the cluster has a candidate goal.
+    valid: bool[K] the cluster has a candidate goal (and is at least ``min_frontier_size`` long).
     distance: f32[K] Euclidean distance robot → goal, m.
+    nearest: f32[K] Euclidean distance robot → the cluster's nearest cell, m.
   """
 
   clusters: labels.Clusters
@@ -93,13 +104,19 @@ class Candidates(NamedTuple):
   look_at: jax.Array
   valid: jax.Array
   distance: jax.Array
+  nearest: jax.Array
 
 
 def validate_frt(weights, params, config, name="frt"):
-  """Host-side check of the weights: ``d_path`` is 0 (Euclidean d) or 1 (path cost)."""
+  """Host-side check of the weights: ``d_path`` and ``d_nearest`` are 0 or 1,
+  ``min_frontier_size`` is not negative."""
   d_path = np.asarray(weights["d_path"])
   if np.any(~np.isin(d_path, [0.0, 1.0])):
     raise ConfigError(f"{name}: d_path must be 0 (Euclidean d, the paper) or 1 (path cost), got {d_path}")
+  if np.any(~np.isin(np.asarray(weights["d_nearest"]), [0.0, 1.0])):
+    raise ConfigError(f"{name}: d_nearest must be 0 (d to the candidate) or 1 (to the nearest frontier cell)")
+  if np.any(np.asarray(weights["min_frontier_size"]) < 0):
+    raise ConfigError(f"{name}: min_frontier_size must be >= 0 m")
 
 
 def validate_ig(weights, params, config):
@@ -114,17 +131,25 @@ def _weights(params, defaults: dict) -> dict:
   return {name: params.planner.get(name, value) for name, value in defaults.items()}
 
 
-def frontier_candidates(config, view: base.BeliefView, robot: base.RobotView, dist) -> Candidates:
+def frontier_candidates(config, view: base.BeliefView, robot: base.RobotView, dist,
+                        min_frontier_size=0.0) -> Candidates:
   """Clusters the frontier and picks each cluster's goal (§4.1; see the module docstring).
 
   Args:
-    config: the static ``SimConfig``.
+    config: the planner context.
     view: the robot's belief.
     robot: the robot.
     dist: f32[H, W] path cost from the robot (``reachable_paths``), inf where unreachable.
+    min_frontier_size: clusters with ``size · res`` below this (m) are no candidates.
   """
+  return cluster_goals(config, view, robot, dist, labels.clusters(view.frontier, MAX_CLUSTERS))
+
+
+def cluster_goals(config, view: base.BeliefView, robot: base.RobotView, dist,
+                  found: labels.Clusters) -> Candidates:
+  """Each group of frontier cells' goal: its centroid cell if the robot can stand there, else its
+  cell nearest the centroid that the Dijkstra reaches and the blacklist allows."""
   height, width = view.frontier.shape
-  found = labels.clusters(view.frontier, MAX_CLUSTERS)
   slots = found.size.shape[0]
   reachable = jnp.isfinite(dist) & ~view.blacklist
 
@@ -151,10 +176,16 @@ def frontier_candidates(config, view: base.BeliefView, robot: base.RobotView, di
 
   goal = jnp.where(centroid_ok[:, None], centroid_cell, nearest_cell)
   look_at = jnp.where(has_eligible[:, None], nearest_cell, goal)
-  valid = found.valid & (centroid_ok | has_eligible)
+  long_enough = found.size.astype(jnp.float32) * config.res >= min_frontier_size - 1e-6
+  valid = found.valid & (centroid_ok | has_eligible) & long_enough
   offset = (goal - robot.cell[None, :]).astype(jnp.float32)
   distance = jnp.sqrt(jnp.sum(offset * offset, axis=-1)) * config.res
-  return Candidates(clusters=found, goal=goal, look_at=look_at, valid=valid, distance=distance)
+  # The authors' code measures d to the frontier's cell nearest to the robot (any of its cells).
+  to_robot = ((rows - robot.cell[0]) ** 2 + (cols - robot.cell[1]) ** 2).astype(jnp.float32)
+  member = jnp.where(found.ids >= 0, found.ids, slots).ravel()
+  nearest = jnp.sqrt(jax.ops.segment_min(to_robot.ravel(), member, num_segments=slots + 1)[:slots])
+  return Candidates(clusters=found, goal=goal, look_at=look_at, valid=valid, distance=distance,
+                    nearest=jnp.where(found.valid, nearest, jnp.inf) * config.res)
 
 
 def expected_occupancy(distance, radius_cells):
@@ -230,10 +261,12 @@ def _plan_lowest_cost(config, view, robot, dist, pred, candidates: Candidates, c
                    n_candidates=jnp.sum(candidates.valid).astype(jnp.int32))
 
 
-def _distance(candidates: Candidates, dist, d_path):
-  """Eq 3's d per candidate: Euclidean (d_path = 0) or the Dijkstra path cost (d_path = 1), m."""
+def _distance(candidates: Candidates, dist, w):
+  """Eq 3's d per candidate, m: the Dijkstra path cost (``d_path`` = 1), else the Euclidean
+  distance to the candidate goal or (``d_nearest`` = 1) to the cluster's nearest cell."""
   path = dist[candidates.goal[:, 0], candidates.goal[:, 1]]
-  return jnp.where(d_path > 0.5, path, candidates.distance)
+  euclidean = jnp.where(w["d_nearest"] > 0.5, candidates.nearest, candidates.distance)
+  return jnp.where(w["d_path"] > 0.5, path, euclidean)
 
 
 def _paths(config, view, robot):
@@ -252,8 +285,8 @@ def plan_frt(config, view: base.BeliefView, robot: base.RobotView, params, key) 
   """
   w = _weights(params, FRT_DEFAULTS)
   dist, pred = _paths(config, view, robot)
-  candidates = frontier_candidates(config, view, robot, dist)
-  d = _distance(candidates, dist, w["d_path"])
+  candidates = frontier_candidates(config, view, robot, dist, w["min_frontier_size"])
+  d = _distance(candidates, dist, w)
   cost = w["C_d"] * d - w["C_i"] * candidates.clusters.size.astype(jnp.float32)
   return _plan_lowest_cost(config, view, robot, dist, pred, candidates, cost)
 
@@ -268,8 +301,12 @@ def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -
   """
   w = _weights(params, IG_DEFAULTS)
   dist, pred = _paths(config, view, robot)
-  candidates = frontier_candidates(config, view, robot, dist)
-  hood = neighbourhoods(view, candidates.clusters.ids, MAX_CLUSTERS, w["D"] / config.res, w["k_f"])
-  d = _distance(candidates, dist, w["d_path"])
+  candidates = frontier_candidates(config, view, robot, dist, w["min_frontier_size"])
+  clusters = candidates.clusters
+  # Clusters dropped by min_frontier_size claim no cells (the authors' code drops them first).
+  kept = clusters.size.astype(jnp.float32) * config.res >= w["min_frontier_size"] - 1e-6
+  ids = jnp.where((clusters.ids >= 0) & kept[jnp.clip(clusters.ids, 0, MAX_CLUSTERS - 1)], clusters.ids, -1)
+  hood = neighbourhoods(view, ids, MAX_CLUSTERS, w["D"] / config.res, w["k_f"])
+  d = _distance(candidates, dist, w)
   cost = w["C_d"] * d - w["C_i"] * hood.factor * hood.info
   return _plan_lowest_cost(config, view, robot, dist, pred, candidates, cost)

@@ -13,22 +13,35 @@ One planning round for one robot:
 3. For every tree node at once, by pointer jumping over the tree (:mod:`jaxplore.graph.tree`):
    - the dead-reckoning covariance Σ at the end of the path (Eq 16–17; the compounding
      Jacobians of a path multiply to ``I + N(total displacement)``, so Σ reduces to a few running
-     sums along the path, see :func:`_covariance_from_sums`);
-   - the information gain of the path (Eq 20–21; Eq 21's garbled sign read as a decrease): the expected decrease of
-     ``I_e`` over the union of cells within ``R_e`` of its waypoints, each cell once. A waypoint
-     adds the cells of its ``R_e`` disc that are not in its parent's disc (a "crescent"); this
-     counts every cell once unless a path leaves a cell's disc and later comes back into it
-     (only around obstacles thinner than ``2 R_e`` or at zig-zags of weighted paths), where that
-     cell is counted again. :func:`path_gain` computes the exact union for one path;
+     sums along the path, see :func:`_covariance_from_sums`). ``δd`` is each grid step's length;
+     ``δφ`` the turn between the chords of consecutive road-mark points ``Settings.road_mark_m``
+     apart (Eq 16 takes it between road-mark points: per grid cell, a staircase that
+     approximates a straight line would turn by 45° at every other cell);
+   - the information gain of the path (Eq 20–21; Eq 21's garbled sign read as a decrease, in
+     either of two readings, ``Settings.eq21``): the expected decrease of ``I_e`` over the union
+     of cells within ``R_e`` of its waypoints, each cell once. A waypoint adds the cells of its
+     ``R_e`` disc that are not in its parent's disc (a "crescent"); this counts every cell once
+     unless a path leaves a cell's disc and later comes back into it (only around obstacles
+     thinner than ``2 R_e`` or at zig-zags of weighted paths), where that cell is counted again.
+     :func:`path_gain` computes the exact union for one path;
    - the re-explore metric ``E_r`` (Eq 22) and the path length, the same way.
 4. Correction (Eq 18–19): det Σ never decreases along a path (Eq 14), so a candidate path is cut
    at its last waypoint with ``det Σ ≤ det Σ_max``: its nearest such ancestor in the tree.
 5. Selection: the corrected path with the largest gain (``select = 0``) or gain per metre
-   (``select = 1``). If no path gains anything beyond what the robot sees where it stands, the
-   path with the largest re-explore metric (uncut: relocalising is its purpose) is taken while
-   frontiers remain or Σ is above its limit; otherwise nothing is left (the episode ends).
+   (``select = 1``), the region of the robot's own position included (Eq 20 sums over every
+   road-mark point of the path). If no path has a positive gain, the path with the largest
+   re-explore metric (uncut: relocalising is its purpose) is taken while frontiers remain or Σ
+   is above its limit; otherwise nothing is left (the episode ends).
 6. Stop (Algorithm 1, line 23) when the average entropy of the observable belief falls below
    ``E_min`` (0 disables it; the engine's coverage goal usually ends the episode first).
+7. The robot follows the chosen path to its end (Algorithm 1 sends a whole path; the planner
+   registers ``commits``), or until it is blocked, then plans again.
+
+Not Li's: a progress timeout (as explore_lite's ``progress_timeout``). A robot that drives
+``progress_m`` metres (straight lines between its plans) without one more cell of its belief
+becoming known ends its episode as exhausted, with ``stuck`` set in its memory. Without it a
+robot can drive back and forth for ever between two places whose regions still hold entropy
+that no scan can remove (unknown cells behind a wall within ``R_e`` of a waypoint).
 
 Cells counted in the gain: known cells, and unknown cells within ``R_e`` of a free cell through
 unknown cells (:func:`observable_cells`). Unknown cells inside walls or outside the building can
@@ -37,6 +50,7 @@ never be observed; counting them would pull the robot along walls forever.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -53,13 +67,56 @@ DEFAULTS = {
     "k1": 0.2,  # weight of edges into entropy boundaries B_e (Eq 8)
     "k2": 0.6,  # weight of edges into grid-map boundaries B_g (Eq 8)
     "tau_e": 0.6,  # entropy threshold of B_e, nats
-    # det Σ_max of Eq 19 (m²·m²·rad²). The paper gives no value; with its σ = 1 odometry model
-    # det Σ reaches ~1 after about a metre of grid path with turns, ~1e2 after a few metres.
+    # det Σ_max of Eq 19 (m²·m²·rad²): this project's choice, not Li's (see the note below).
     "det_sigma_max": 1e2,
     "select": 0.0,  # 0: max gain; 1: max gain per metre
     "e_min": 0.0,  # stop when the average observable entropy falls below this (0: never)
     "h0": math.log(2.0),  # H_0 of the re-explore metric, Eq 22
+    # Progress timeout (not Li's; explore_lite's progress_timeout): a robot that has driven this
+    # far (m, straight lines between its plans) without one more cell of its belief becoming
+    # known ends its episode as exhausted (memory "stuck"). 0 disables it.
+    "progress_m": 20.0,
 }
+
+# det Σ_max = 1e2 (m²·m²·rad²) is this project's choice, not Li's (the paper gives no value).
+# What it means with Eq 16 at σ_d = σ_φ = 1, Σ_0 = 1e-4·I and 0.1 m cells (a NumPy loop of
+# Eq 17, road-mark points every 0.5 m / every cell): a straight path never reaches it (det Σ is
+# 1.6e-3 after 40 m), nor does one with a single 90° turn within 40 m; a path turning by 90°
+# every 1 m reaches it after 6.3 m / 5.1 m, every 4 m after 12.2 m / 10.3 m; a staircase of
+# slope 1/2 (a straight line on the grid) after 22.9 m / 3.5 m.
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """Static settings of ``li2020``.
+
+  Attributes:
+    eq21: Eq 21's reading of the entropy a cell will have once observed, ``H'(c)`` (the gain of a
+      cell is ``H(c) − H'(c)`` where positive, ``H`` = the entropy map ``I_e``): ``"sensor"``,
+      ``H' = k·H(c) + (1−k)·H_obs`` with ``H_obs`` the entropy after one free observation (Eq 3
+      applied once); ``"cell"``, ``H' = Ĥ(P(c))``, the cell's entropy in the occupancy belief now
+      (Eq 21 as printed is a function of the cell's ``P(c)``; its sign is garbled).
+    road_mark_m: spacing of the road-mark points ``p_m`` along a candidate path at which Eq 16's
+      heading change ``δφ`` is taken (the direction between consecutive road-mark points), m.
+      Per grid cell (0) a staircase path that approximates a straight line turns by 45° at
+      every other cell and its Σ explodes while a grid-aligned path's does not.
+  """
+
+  eq21: str = "sensor"
+  road_mark_m: float = 0.5
+
+  def __post_init__(self):
+    if self.eq21 not in ("sensor", "cell"):
+      raise ConfigError(f"li2020: eq21 must be 'sensor' or 'cell', got {self.eq21!r}")
+    if not self.road_mark_m >= 0:
+      raise ConfigError(f"li2020: road_mark_m must be >= 0, got {self.road_mark_m!r}")
+
+
+def init_memory(ctx, params):
+  """The progress timeout's memory: unknown cells at the last progress, metres driven since,
+  where the robot planned last (once it has), and whether the timeout ended the episode."""
+  return {"unknown": jnp.int32(ctx.height * ctx.width), "driven": jnp.float32(0.0),
+          "xy": jnp.zeros((2,), jnp.float32), "planned": jnp.bool_(False), "stuck": jnp.bool_(False)}
 
 CHANNELS = ("gain", "reexplore", "length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
 
@@ -68,6 +125,8 @@ def validate(weights, params, ctx):
   k1, k2 = np.asarray(weights["k1"]), np.asarray(weights["k2"])
   if np.any(k1 < 0) or np.any(k2 >= 1) or np.any(k1 >= k2):
     raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got k1={k1}, k2={k2}")
+  if np.any(np.asarray(weights["progress_m"]) < 0):
+    raise ConfigError("li2020: progress_m must be >= 0 (0 disables the progress timeout)")
   if np.any(np.asarray(weights["det_sigma_max"]) <= 0):
     raise ConfigError("li2020: det_sigma_max must be > 0")
   if np.any(~np.isin(np.asarray(weights["select"]), [0.0, 1.0])):
@@ -102,40 +161,56 @@ def crescents(radius: float):
 
 
 def _shift_sum(field, offsets, pad):
-  """Σ_o field[i + o] for every cell (zero outside the grid); field [..., H, W]."""
+  """Σ_o field[i + o] for every cell (zero outside the grid); field [..., H, W].
+
+  A loop over the offsets (an R_e of tens of cells has a thousand crescent offsets: unrolled,
+  they would each be compiled).
+  """
   h, w = field.shape[-2:]
-  framed = jnp.pad(field, [(0, 0)] * (field.ndim - 2) + [(pad, pad), (pad, pad)])
-  out = jnp.zeros(field.shape, field.dtype)
-  for di, dj in offsets:
-    out = out + jax.lax.slice_in_dim(jax.lax.slice_in_dim(framed, pad + di, pad + di + h, axis=-2),
-                                     pad + dj, pad + dj + w, axis=-1)
-  return out
+  lead = field.ndim - 2
+  framed = jnp.pad(field, [(0, 0)] * lead + [(pad, pad), (pad, pad)])
+  table = jnp.asarray(offsets, jnp.int32).reshape(-1, 2) + pad
+
+  def add(i, out):
+    start = (0,) * lead + (table[i, 0], table[i, 1])
+    return out + jax.lax.dynamic_slice(framed, start, field.shape[:lead] + (h, w))
+
+  return jax.lax.fori_loop(0, table.shape[0], add, jnp.zeros(field.shape, field.dtype))
 
 
 def observable_cells(view: base.BeliefView, radius: float):
   """Known cells, and unknown cells reachable from a free cell through unknown cells (4-neighbour
   steps, at most ``radius`` of them): what a robot passing by could observe. Unknown cells behind
   observed walls (wall interiors, outside the building) are never reached."""
-  reach = view.free
-  for _ in range(int(math.ceil(radius))):
+  def grow(_, reach):
     framed = mapping.frame(reach, False)
     grown = reach
     for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
       grown = grown | mapping.shifted(framed, di, dj)
-    reach = reach | (grown & view.unknown)
+    return reach | (grown & view.unknown)
+
+  reach = jax.lax.fori_loop(0, int(math.ceil(radius)), grow, view.free)
   return ~view.unknown | reach
 
 
-def cell_gains(view: base.BeliefView, params, h0, radius: float):
+def cell_gains(view: base.BeliefView, params, h0, radius: float, eq21: str = "sensor"):
   """Per-cell expected entropy decrease (Eq 20–21, read as a decrease) and re-explore term (Eq 22).
 
-  ``H'(c) = k·H(c) + (1−k)·H_obs`` where ``H_obs`` is the entropy of a cell after one free
-  observation, so the gain of a cell is ``(1−k)·(H(c) − H_obs)`` where positive.
+  The gain of a cell is ``H(c) − H'(c)`` where positive, ``H`` the entropy map ``I_e``, with
+  Eq 21's ``H'`` read as ``k·H(c) + (1−k)·H_obs`` (``eq21="sensor"``; ``H_obs`` the entropy of a
+  cell after one free observation), or as ``Ĥ(P(c))``, the cell's entropy in the belief
+  (``eq21="cell"``); see :class:`Settings`.
   """
   h = view.entropy_map
-  h_obs = mapping.entropy_of_logodds(params.l_free)
+  if eq21 == "sensor":
+    h_obs = mapping.entropy_of_logodds(params.l_free)
+    after = params.entropy_k * h + (1.0 - params.entropy_k) * h_obs
+  elif eq21 == "cell":
+    after = mapping.entropy_of_logodds(view.logodds)
+  else:
+    raise ValueError(f"eq21 must be 'sensor' or 'cell', got {eq21!r}")
   observable = observable_cells(view, radius)
-  gain = jnp.where(observable, (1.0 - params.entropy_k) * jnp.maximum(h - h_obs, 0.0), 0.0)
+  gain = jnp.where(observable, jnp.maximum(h - after, 0.0), 0.0)
   reexplore = jnp.where(observable, jnp.maximum(h0 - h, 0.0), 0.0)
   return jnp.stack([gain, reexplore])
 
@@ -197,6 +272,27 @@ def _covariance_from_sums(sums, xy, xy_root, cov0):
   return a_cov_at + q
 
 
+def road_mark_cells(ctx) -> int:
+  """Cells between road-mark points (:class:`Settings` ``road_mark_m``); 1 = every cell."""
+  settings = ctx.settings if ctx.settings is not None else Settings()
+  if settings.road_mark_m <= 0:
+    return 1
+  return max(1, int(round(settings.road_mark_m / ctx.res)))
+
+
+def _ancestor(parent, k: int):
+  """The k-th ancestor of every node (``parent`` maps the root and outside nodes to themselves),
+  by binary lifting: one gather per bit of ``k``."""
+  result = jnp.arange(parent.shape[0], dtype=parent.dtype)
+  power = parent
+  while k:
+    if k & 1:
+      result = power[result]
+    power = power[power]
+    k >>= 1
+  return result
+
+
 def tree_quantities(config, view, robot, params, pred, gains):
   """Per-node path sums (gain, re-explore, length, covariance terms) over the Dijkstra tree.
 
@@ -213,18 +309,32 @@ def tree_quantities(config, view, robot, params, pred, gains):
   d_row, d_col = parent // w - rows, parent % w - cols  # toward the parent, in {-1, 0, 1}
   root = robot.cell[0] * w + robot.cell[1]
 
-  # Heading of the move into each node, one of 8 directions (a node without a parent, such as
-  # the root, has the robot's heading), and the turn from the parent's heading: 9 headings and
-  # 9 x 9 wrapped turns, tabulated rather than an arctan2, sin and cos per cell.
-  code = (d_row + 1) * 3 + (d_col + 1)  # 4: no parent
-  moves = jnp.arange(9)
-  headings = jnp.where(moves == 4, robot.pose[2],
-                       jnp.arctan2(-(moves // 3 - 1).astype(jnp.float32), -(moves % 3 - 1).astype(jnp.float32)))
-  turn = headings[:, None] - headings[None, :]
-  turns = jnp.arctan2(jnp.sin(turn), jnp.cos(turn))
-  delta_phi = jnp.where(has_parent, turns[code, code[parent]], 0.0)
-  delta_d = jnp.where(has_parent, res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
   xy = jnp.stack([(cols - robot.cell[1]) * res, (rows - robot.cell[0]) * res], -1).astype(jnp.float32)
+  spacing = road_mark_cells(config)
+  if spacing <= 1:
+    # Per grid cell: the heading of the move into each node is one of 8 directions (a node
+    # without a parent, such as the root, has the robot's heading), and the turn from the
+    # parent's heading is tabulated (9 headings, 9 x 9 wrapped turns).
+    code = (d_row + 1) * 3 + (d_col + 1)  # 4: no parent
+    moves = jnp.arange(9)
+    headings = jnp.where(moves == 4, robot.pose[2], jnp.arctan2(
+        -(moves // 3 - 1).astype(jnp.float32), -(moves % 3 - 1).astype(jnp.float32)))
+    turn = headings[:, None] - headings[None, :]
+    turns = jnp.arctan2(jnp.sin(turn), jnp.cos(turn))
+    delta_phi = jnp.where(has_parent, turns[code, code[parent]], 0.0)
+  else:
+    # Road-mark points every ``spacing`` cells from the root: δφ at each is the turn between the
+    # chords to it and to the previous one (the first chord turns from the robot's heading).
+    depth = path_sums(pred_flat, jnp.ones((h * w, 1), jnp.float32))[:, 0] - 1.0
+    back = _ancestor(parent, spacing)
+    back2 = back[back]
+    chord = lambda a, b: jnp.arctan2(xy[b, 1] - xy[a, 1], xy[b, 0] - xy[a, 0])
+    heading = chord(back, idx)
+    previous = jnp.where(depth >= 2 * spacing, chord(back2, back), robot.pose[2])
+    turn = heading - previous
+    road_mark = (depth >= spacing) & (jnp.mod(depth, spacing) == 0)
+    delta_phi = jnp.where(road_mark, jnp.arctan2(jnp.sin(turn), jnp.cos(turn)), 0.0)
+  delta_d = jnp.where(has_parent, res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
 
   # Crescent of new cells per parent direction (the root gets its whole disc).
   radius = config.r_e_cells
@@ -234,8 +344,10 @@ def tree_quantities(config, view, robot, params, pred, gains):
     field = _shift_sum(gains, offsets, pad).reshape(2, -1)
     new_cells = jnp.where((d_row == di) & (d_col == dj), field, new_cells)
   disc = jnp.asarray(disc_offsets(radius), jnp.int32)
+  # wrap_negative_indices=False: a disc over the top or left border must read 0 there, not the
+  # last row or column.
   disc_at_root = jnp.sum(gains.at[:, robot.cell[0] + disc[:, 0], robot.cell[1] + disc[:, 1]].get(
-      mode="fill", fill_value=0.0), axis=1)
+      mode="fill", fill_value=0.0, wrap_negative_indices=False), axis=1)
   new_cells = jnp.where(idx == root, disc_at_root[:, None], new_cells)
 
   a = (params.sigma_d * delta_d) ** 2
@@ -254,16 +366,19 @@ def average_observable_entropy(view: base.BeliefView, radius: float):
   return jnp.sum(jnp.where(observable, entropy, 0.0)) / jnp.maximum(jnp.sum(observable), 1)
 
 
-@base.register("li2020", defaults=DEFAULTS, validate=validate, needs_entropy_map=True,
+@base.register("li2020", defaults=DEFAULTS, settings=Settings(), validate=validate,
+               needs_entropy_map=True, init_memory=init_memory, commits=True,
                summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")
-def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key):
+def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key, memory):
+  """One planning round of Algorithm 1 (see the module docstring). Returns (Plan, memory)."""
   weights = params.planner
+  settings = config.settings if config.settings is not None else Settings()
   h, w = config.height, config.width
   b_e, b_g = boundaries(view, weights["tau_e"])
   sp = shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]), robot.cell,
                       max_sweeps=config.dijkstra_max_sweeps)
   reachable = jnp.isfinite(sp.dist).ravel()
-  gains = cell_gains(view, params, weights["h0"], config.r_e_cells)
+  gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
   sums, cov, _ = tree_quantities(config, view, robot, params, sp.pred, gains)
   root = robot.cell[0] * w + robot.cell[1]
   idx = jnp.arange(h * w, dtype=jnp.int32)
@@ -276,10 +391,11 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   candidates = jnp.zeros((h * w,), bool).at[jnp.where(cut >= 0, cut, h * w)].set(True, mode="drop")
   candidates = candidates & (idx != root)
 
+  # Eq 20 sums over every road-mark point of a path, its first (where the robot stands)
+  # included: a path gains when the robot's own region still has entropy to lose.
   gain, length, reexplore = sums[:, 0], sums[:, 2], sums[:, 1]
-  marginal = gain - gain[root]
-  score = jnp.where(weights["select"] > 0.5, marginal / jnp.maximum(length, config.res), marginal)
-  score = jnp.where(candidates & (marginal > 1e-6), score, -jnp.inf)
+  score = jnp.where(weights["select"] > 0.5, gain / jnp.maximum(length, config.res), gain)
+  score = jnp.where(candidates & (gain > 1e-6), score, -jnp.inf)
   best = reductions.argmax(score, w)
   explore = jnp.isfinite(score[best])
 
@@ -290,12 +406,24 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
   converged = (weights["e_min"] > 0) & (average_observable_entropy(view, config.r_e_cells) < weights["e_min"])
 
+  # Progress timeout: metres driven (straight lines between plans) since the belief last gained
+  # a known cell.
+  unknown = jnp.sum(view.unknown).astype(jnp.int32)
+  step = jnp.where(memory["planned"], jnp.linalg.norm(robot.pose[:2] - memory["xy"]), 0.0)
+  progressed = unknown < memory["unknown"]
+  driven = jnp.where(progressed, 0.0, memory["driven"] + step)
+  stuck = (weights["progress_m"] > 0) & (driven > weights["progress_m"])
+  memory = {"unknown": jnp.minimum(unknown, memory["unknown"]), "driven": driven,
+            "xy": robot.pose[:2].astype(jnp.float32), "planned": jnp.bool_(True),
+            "stuck": memory["stuck"] | stuck}
+
   chosen = jnp.where(explore, best, fallback)
-  valid = (explore | can_fallback) & ~converged
+  valid = (explore | can_fallback) & ~converged & ~stuck
   goal = jnp.stack([chosen // w, chosen % w]).astype(jnp.int32)
   cells, length_wp = extract_path(sp.pred, goal, config.path_capacity, source=robot.cell)
   look_at = base.unknown_neighbour(goal, view.unknown, view.occupied)
-  return base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32), goal=goal,
+  plan = base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32), goal=goal,
                    look_at=look_at, valid=valid, gain=jnp.where(explore, gain[chosen], reexplore[chosen]),
                    cost=sp.dist.ravel()[chosen] * config.res,
                    n_candidates=jnp.sum(candidates).astype(jnp.int32))
+  return plan, memory

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplore import mapping
+from jaxplore import mapping, posegraph
 from jaxplore.config import make_params
 from jaxplore.planners import base, planner_names
 
@@ -42,13 +42,15 @@ def view_and_robot(spec, params, cell, theta):
   free, occupied, unknown = mapping.classify(logodds, params)
   inflated = mapping.inflate(occupied, params.r_robot / 0.1, 2)
   entropy = mapping.entropy_of_logodds(logodds) if spec.needs_entropy_map else None
-  view = base.BeliefView(logodds=logodds, entropy_map=entropy, free=free, occupied=occupied,
-                         unknown=unknown, inflated=inflated, traversable=free & ~inflated,
-                         frontier=mapping.frontier(free, unknown, occupied),
-                         blacklist=jnp.zeros((H, W), bool))
   robot = base.RobotView(pose=jnp.asarray([cell[1] * 0.1 + 0.05, cell[0] * 0.1 + 0.05, theta],
                                           jnp.float32),
                          cell=jnp.asarray(cell, jnp.int32), cov=jnp.eye(3, dtype=jnp.float32) * 1e-4)
+  # A pose graph of one keyframe at the robot, for planners that read one.
+  graph = posegraph.init(robot.pose, 16, 8) if spec.needs_pose_graph else None
+  view = base.BeliefView(logodds=logodds, entropy_map=entropy, free=free, occupied=occupied,
+                         unknown=unknown, inflated=inflated, traversable=free & ~inflated,
+                         frontier=mapping.frontier(free, unknown, occupied),
+                         blacklist=jnp.zeros((H, W), bool), pose_graph=graph)
   return view, robot
 
 

@@ -271,7 +271,8 @@ def test_algorithm_1_with_nearest_cluster_assignment_on_random_maps(seed):
 def expected_choice(planner, state, start, blacklist, weights):
   """Every cluster's cost by NumPy; returns (costs of clusters with a goal, their goals)."""
   reachable = reachable_numpy(state, start)
-  found = clusters_numpy(state)
+  # The authors' min_frontier_size: shorter clusters are dropped before anything else.
+  found = [c for c in clusters_numpy(state) if len(c) * RES >= weights["min_frontier_size"] - 1e-6]
   grid = np.indices((H, W)).reshape(2, -1).T
   if found:
     to_cluster = np.stack([np.abs(grid[:, None, :] - c[None]).sum(-1).min(1) for c in found], 1)
@@ -284,6 +285,8 @@ def expected_choice(planner, state, start, blacklist, weights):
       continue
     if weights["d_path"]:
       d = RES * path_lengths_numpy(state, start)[tuple(goal)]
+    elif weights["d_nearest"]:  # the authors' code: to the cluster's cell nearest to the robot
+      d = RES * np.min(np.hypot(cells[:, 0] - start[0], cells[:, 1] - start[1]))
     else:
       d = RES * math.hypot(goal[0] - start[0], goal[1] - start[1])
     if planner == "frt":
@@ -309,6 +312,9 @@ def expected_choice(planner, state, start, blacklist, weights):
     ("ig", {"D": 0.4}),
     ("ig", {"D": 0.3, "C_i": 1.0, "k_f": 2.0}),
     ("ig", {"D": 0.4, "C_i": 0.2, "d_path": 1.0}),
+    ("frt", {"min_frontier_size": 0.0}),
+    ("frt", {"d_nearest": 1.0, "min_frontier_size": 1.2}),
+    ("ig", {"D": 0.4, "d_nearest": 1.0, "min_frontier_size": 1.2}),
 ])
 def test_choice_is_the_lowest_cost_cluster_by_numpy(planner, weights):
   rng = np.random.default_rng(11)

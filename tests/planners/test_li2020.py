@@ -1,6 +1,7 @@
 """Li et al. 2020's planner against oracles: NumPy Eq 4, SciPy Dijkstra, a NumPy loop of Eq 17,
 the exact union of swept cells (Eq 20)."""
 
+import dataclasses
 import math
 
 import jax
@@ -19,6 +20,12 @@ from jaxplore.planners import base, li2020
 H, W = 26, 34
 CONFIG = base.PlannerContext(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
                              r_e_cells=3.0)
+
+
+# Jitted once per static context and shared by the tests (compiles dominate this file's time).
+TREE = jax.jit(li2020.tree_quantities, static_argnums=0)
+PLAN = jax.jit(li2020.plan_li2020, static_argnums=0)
+ROAD_MARKS = dataclasses.replace(CONFIG, settings=li2020.Settings(road_mark_m=0.5))
 
 
 def weights(**kw):
@@ -108,27 +115,31 @@ def test_weighted_dijkstra_matches_scipy_with_zero_weights(k1):
   np.testing.assert_allclose(np.asarray(sp.dist), ref, rtol=1e-5, atol=1e-5)
 
 
-def numpy_cov_along(cells, theta0, cov0, res, sigma_d, sigma_phi):
-  """Plain loop of Li Eq 12, 16, 17 along waypoints (δφ: heading change between segments)."""
+def numpy_cov_along(cells, theta0, cov0, res, sigma_d, sigma_phi, spacing=1):
+  """Plain loop of Li Eq 12, 16, 17 along waypoints: δd = each step's length; δφ = the turn
+  between consecutive chords of road-mark points every ``spacing`` waypoints (the first chord
+  turns from ``theta0``), 0 between road-mark points."""
   cov = np.array(cov0, np.float64)
-  heading = theta0
   covs = [cov]
-  for a, b in zip(cells[:-1], cells[1:]):
-    xa, ya = a[1] * res, a[0] * res
-    xb, yb = b[1] * res, b[0] * res
-    new_heading = math.atan2(yb - ya, xb - xa)
-    dphi = math.atan2(math.sin(new_heading - heading), math.cos(new_heading - heading))
+  xy = lambda i: np.array([cells[i][1] * res, cells[i][0] * res])
+  chord = lambda i, j: math.atan2(*(xy(j) - xy(i))[::-1])
+  for i in range(1, len(cells)):
+    (xa, ya), (xb, yb) = xy(i - 1), xy(i)
+    dphi = 0.0
+    if i % spacing == 0:
+      previous = chord(i - 2 * spacing, i - spacing) if i >= 2 * spacing else theta0
+      turn = chord(i - spacing, i) - previous
+      dphi = math.atan2(math.sin(turn), math.cos(turn))
     dd = math.hypot(xb - xa, yb - ya)
     j1 = np.array([[1, 0, ya - yb], [0, 1, xb - xa], [0, 0, 1]])
-    j2 = np.array([[math.cos(heading), -math.sin(heading), 0], [math.sin(heading), math.cos(heading), 0], [0, 0, 1]])
     v = np.diag([(sigma_d * dd) ** 2, (sigma_d * dd) ** 2, (sigma_phi * dphi) ** 2])
-    cov = j1 @ cov @ j1.T + j2 @ v @ j2.T
+    cov = j1 @ cov @ j1.T + v  # J2 V J2ᵀ = V: V's x and y variances are equal
     covs.append(cov)
-    heading = new_heading
   return covs
 
 
-def test_tree_covariance_matches_numpy_loop_of_eq17():
+@pytest.mark.parametrize("road_mark_m", [0.0, 0.5])
+def test_tree_covariance_matches_numpy_loop_of_eq17(road_mark_m):
   params = params_for()
   params = params.replace(sigma_d=jnp.float32(0.5), sigma_phi=jnp.float32(0.3))
   _, l, entropy = belief(2)
@@ -137,14 +148,17 @@ def test_tree_covariance_matches_numpy_loop_of_eq17():
   cost = li2020.edge_weights(view, b_e, b_g, jnp.float32(0.2), jnp.float32(0.6))
   robot = robot_at((5, 15), theta=0.7, cov=2e-3)
   sp = shortest_paths(cost, robot.cell)
+  ctx = ROAD_MARKS if road_mark_m else dataclasses.replace(CONFIG, settings=li2020.Settings(road_mark_m=0.0))
+  spacing = li2020.road_mark_cells(ctx)
+  assert spacing == (1 if road_mark_m == 0 else 5)
   gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
-  sums, cov, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
+  sums, cov, _ = TREE(ctx, view, robot, params, sp.pred, gains)
   rng = np.random.default_rng(0)
   reachable = np.argwhere(np.isfinite(np.asarray(sp.dist)))
   for goal in reachable[rng.choice(len(reachable), 12, replace=False)]:
     cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
     cells = np.asarray(cells)[: int(n)]
-    ref = numpy_cov_along(cells, 0.7, np.asarray(robot.cov), CONFIG.res, 0.5, 0.3)[-1]
+    ref = numpy_cov_along(cells, 0.7, np.asarray(robot.cov), CONFIG.res, 0.5, 0.3, spacing)[-1]
     got = np.asarray(cov[goal[0] * W + goal[1]])
     np.testing.assert_allclose(got, ref, rtol=2e-3, atol=1e-7)
     # path length is the sum of step lengths
@@ -194,14 +208,19 @@ def test_plan_is_safe_and_within_the_covariance_limit(transform, select):
   state, l, entropy = belief(5)
   view = make_view(l, entropy, params)
   robot = robot_at((5, 15), cov=1e-3)
-  plan = transform(lambda v, r: li2020.plan_li2020(CONFIG, v, r, params, jax.random.PRNGKey(0)))(view, robot)
+  memory = li2020.init_memory(CONFIG, params)
+  if transform is jax.jit:
+    plan, _ = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0), memory)
+  else:
+    plan, _ = li2020.plan_li2020(CONFIG, view, robot, params, jax.random.PRNGKey(0), memory)
   assert bool(plan.valid) and int(plan.n_candidates) > 0  # an exploration plan, not the fallback
   n = int(plan.length)
   cells = np.asarray(plan.waypoints)[:n]
   assert n >= 2 and tuple(cells[0]) == (5, 15)
   assert (state[cells[:, 0], cells[:, 1]] == 0).all()  # never occupied or unknown
   assert np.asarray(view.traversable)[cells[:, 0], cells[:, 1]].all()
-  covs = numpy_cov_along(cells, 0.3, np.asarray(robot.cov), CONFIG.res, 1.0, 1.0)
+  covs = numpy_cov_along(cells, 0.3, np.asarray(robot.cov), CONFIG.res, 1.0, 1.0,
+                         li2020.road_mark_cells(CONFIG))
   assert max(np.linalg.det(c) for c in covs) <= det_max * (1 + 1e-3)
 
 
@@ -210,3 +229,110 @@ def test_k1_below_k2_is_enforced():
   with pytest.raises(ConfigError, match="k1 < k2"):
     li2020.validate({k: np.asarray(v) for k, v in dict(li2020.DEFAULTS, k1=0.7, k2=0.6).items()},
                     params_for(), CONFIG)
+
+
+def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders():
+  params = params_for()
+  _, l, entropy = belief(6)
+  view = make_view(l, entropy, params)
+  robot = robot_at((1, 1))
+  gains = np.zeros((2, H, W), np.float32)
+  gains[:, -1, :] = 1.0  # only the last row and column gain: a disc at (1, 1) never reaches them
+  gains[:, :, -1] = 1.0
+  sp = shortest_paths(jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32), robot.cell)
+  sums, _, _ = TREE(ROAD_MARKS, view, robot, params, sp.pred, jnp.asarray(gains))
+  assert float(sums[1 * W + 1, 0]) == 0.0 and float(sums[1 * W + 1, 1]) == 0.0
+
+
+@pytest.mark.parametrize("eq21", ["sensor", "cell"])
+def test_both_readings_of_eq21_match_their_formulas(eq21):
+  params = params_for()
+  rng = np.random.default_rng(7)
+  l = rng.choice(np.array([-3.0, -1.0, 1.0, 3.0], np.float32), size=(H, W))  # every cell known
+  entropy = rng.uniform(0.0, math.log(2), (H, W)).astype(np.float32)
+  view = make_view(l, entropy, params)
+  gain, reexplore = np.asarray(li2020.cell_gains(view, params, jnp.float32(0.6), 3.0, eq21))
+  h_cell = lambda x: -(x * np.log(x) + (1 - x) * np.log(1 - x))
+  k = float(params.entropy_k)
+  if eq21 == "sensor":  # H' = k·H + (1−k)·H_obs, H_obs the entropy after one free observation
+    after = k * entropy + (1 - k) * h_cell(1 / (1 + math.exp(1.0)))
+  else:  # H' = Ĥ(P(c))
+    after = h_cell(1 / (1 + np.exp(-l.astype(np.float64))))
+  np.testing.assert_allclose(gain, np.maximum(entropy - after, 0.0), atol=1e-6)
+  np.testing.assert_allclose(reexplore, np.maximum(0.6 - entropy, 0.0), atol=1e-6)
+  assert (gain > 0).any() and (gain == 0).any()
+
+
+def test_a_path_gains_what_the_robot_would_still_see_where_it_stands():
+  """Eq 20 counts the first road-mark point's region: entropy left only where the robot stands is
+  a gain (it used to be subtracted from every path, sending the robot to the Eq 22 fallback)."""
+  params = params_for()
+  state, l, _ = belief(8)
+  l[:, 26:] = -3.0  # no unknown cells, no frontier
+  l[0, :] = l[-1, :] = l[:, 0] = l[:, -1] = 3.0
+  entropy = np.full((H, W), 0.01, np.float32)
+  entropy[5, 15] = math.log(2)  # only the robot's own cell has entropy to lose
+  view = make_view(l, entropy, params)
+  plan, _ = PLAN(CONFIG, view, robot_at((5, 15)), params, jax.random.PRNGKey(0), li2020.init_memory(CONFIG, params))
+  gain = np.asarray(li2020.cell_gains(view, params, jnp.float32(math.log(2)), 3.0))[0]
+  assert gain[5, 15] > 0 and gain.sum() == gain[5, 15]
+  assert bool(plan.valid) and int(plan.length) >= 2
+  np.testing.assert_allclose(float(plan.gain), gain[5, 15], rtol=1e-5)  # an exploring plan
+
+
+def test_the_progress_timeout_ends_a_robot_that_drives_without_mapping_anything():
+  params = params_for(progress_m=20.0)
+  _, l, entropy = belief(9)
+  view = make_view(l, entropy, params)
+  memory = li2020.init_memory(CONFIG, params)
+  valid = []
+  for i in range(9):  # 3 m between plans, the belief never changes
+    robot = robot_at((5, 15)).replace(pose=jnp.asarray([3.0 * (i % 2), 0.0, 0.3], jnp.float32))
+    plan, memory = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(i), memory)
+    valid.append(bool(plan.valid))
+  # driven: 0, 3, ..., 18 m (valid), 21 m > 20 m: stuck for good
+  assert valid == [True] * 7 + [False] * 2 and bool(memory["stuck"])
+  # a cell becoming known resets the distance
+  l2 = l.copy()
+  l2[:, 26] = -3.0
+  memory = dict(memory, stuck=jnp.bool_(False))
+  plan, memory = PLAN(CONFIG, make_view(l2, entropy, params), robot_at((5, 15)), params,
+                      jax.random.PRNGKey(0), memory)
+  assert bool(plan.valid) and float(memory["driven"]) == 0.0
+
+
+def test_two_pockets_behind_slits_make_a_two_cycle_that_the_progress_timeout_ends():
+  """A hand-made belief with the livelock: a mapped corridor with two slits too narrow for the
+  robot, each into an unknown room. The rooms' cells near a slit count as observable (reached
+  from the slit's free cell through unknown cells), but no scan from the corridor will ever
+  map them, so their entropy never falls. From near one slit the best path goes to the other
+  and back: a 2-cycle over a belief that never changes, until the progress timeout."""
+  params = params_for(progress_m=20.0)
+  l = np.full((H, W), -3.0, np.float32)
+  l[:9, :] = 0.0  # the unknown rooms above the corridor
+  l[9, :] = 3.0  # their wall, with two slits
+  l[9, 5] = l[9, 28] = -3.0
+  l[16:, :] = 3.0
+  l[:, 0] = l[:, -1] = 3.0
+  l[:9, 16:18] = 3.0  # the wall between the two rooms
+  entropy = np.where(l == 0.0, math.log(2), 0.05).astype(np.float32)
+  view = make_view(l, entropy, params)
+  assert not np.asarray(view.traversable)[9, [5, 28]].any()  # the robot cannot pass a slit
+  memory = li2020.init_memory(CONFIG, params)
+  cell, sides, driven = (12, 5), [], 0.0
+  for i in range(30):
+    pose = jnp.asarray([(cell[1] + 0.5) * CONFIG.res, (cell[0] + 0.5) * CONFIG.res, 0.0], jnp.float32)
+    robot = robot_at(cell).replace(pose=pose)
+    plan, memory = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(i), memory)
+    if not bool(plan.valid):
+      break
+    goal = tuple(int(v) for v in np.asarray(plan.goal))
+    sides.append("left" if goal[1] < 17 else "right")
+    driven += math.hypot(goal[0] - cell[0], goal[1] - cell[1]) * CONFIG.res
+    cell = goal
+  # The 2-cycle: after a step toward the first slit, every plan crosses to the other one ...
+  assert sides[1:7] == ["right", "left"] * 3
+  assert all(a != b for a, b in zip(sides[1:], sides[2:]))
+  # ... until 20 m without a newly known cell end the episode.
+  assert not bool(plan.valid) and bool(memory["stuck"])
+  assert 20.0 - 3.5 <= driven <= 20.0 + 3.5

@@ -1,0 +1,237 @@
+"""The resolver: a :class:`jaxplore.runspec.RunSpec` in, the device-side batch out.
+
+:func:`resolve` is the one place where settings become the things the engine runs on: the truth
+map, the static :class:`jaxplore.config.SimConfig` (sized from the largest range and radius of
+the whole batch), the traced :class:`jaxplore.config.Params` (scalars, or one value per robot),
+the device-side :class:`jaxplore.sim.World` and the start pose; every value is validated first,
+so a bad setting is refused before any compute. :meth:`Resolved.batch` then gives the batched
+parameters, PRNG keys and starts of all robots or of some of them: a sweep resolves a whole group
+of rows once and runs it chunk by chunk, ``jaxplore animate`` replays a few robots of a run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplore import posegraph, sim
+from jaxplore.config import (ConfigError, Params, SimConfig, config_for, make_params,
+                             validate_params)
+from jaxplore.maps import GridMap, load_world
+from jaxplore.planners import get_planner
+from jaxplore.runspec import STATIC_PARAMS, RunSpec
+
+
+class Batch(NamedTuple):
+  """What the engine's reset and advance take for a batch of B robots.
+
+  Attributes:
+    params: :class:`Params` with every leaf f32[B]. keys: the robots' PRNG keys, [B, 2].
+    starts: f32[B, 3] start poses, or None to sample them from the keys.
+  """
+
+  params: Params
+  keys: jax.Array
+  starts: jax.Array | None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Resolved:
+  """A run specification resolved and validated (host side; only the World is on the device).
+
+  Attributes:
+    spec: the specification it came from (with the world as given).
+    grid: the truth map.
+    config: the static config of the whole batch.
+    params: the traced parameters, each leaf a scalar or one value per robot (the planner's
+      static settings are in ``config.planner_settings``).
+    world: the device-side truth, reachable area and start area.
+    start: the (x, y, θ) start pose of every robot, or None.
+  """
+
+  spec: RunSpec
+  grid: GridMap
+  config: SimConfig
+  params: Params
+  world: sim.World
+  start: tuple[float, float, float] | None
+
+  @property
+  def robots(self) -> int:
+    return self.spec.robots
+
+  def keys(self, robots: Sequence[int] | None = None) -> jax.Array:
+    """The PRNG keys of ``robots`` (indices into the batch; default all): ``PRNGKey(s)`` of each
+    robot seed, or the keys split from ``PRNGKey(seed)``."""
+    spec = self.spec
+    if spec.robot_seeds is None:
+      keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.robots)
+      return keys if robots is None else keys[jnp.asarray(list(robots))]
+    seeds = spec.robot_seeds if robots is None else [spec.robot_seeds[r] for r in robots]
+    return jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds, jnp.uint32))
+
+  def batch(self, robots: Sequence[int] | None = None) -> Batch:
+    """The device-side inputs of ``robots`` (indices into the batch, repeats allowed; default
+    all of them in order)."""
+    if robots is None:
+      params = sim.broadcast_params(self.params, self.robots)
+      n = self.robots
+    else:
+      index = np.asarray(list(robots), np.int64)
+      n = len(index)
+      pick = lambda leaf: (leaf if np.ndim(leaf) == 0 else np.asarray(leaf, np.float32)[index])
+      params = sim.broadcast_params(jax.tree.map(pick, self.params), n)
+    starts = (None if self.start is None
+              else jnp.tile(jnp.asarray(self.start, jnp.float32), (n, 1)))
+    return Batch(params, self.keys(robots), starts)
+
+  def describe(self) -> dict:
+    """The resolved settings in JSON form: the world, the static config, the traced parameters
+    and the planner's weights and settings (what ``config.json`` records)."""
+    grid = self.grid
+    return {
+        "world": {"name": grid.name, "shape": list(grid.shape), "res": grid.res,
+                  "origin": list(grid.origin), "free_m2": grid.free_area,
+                  "reachable_m2": float(self.world.n_reachable) * grid.res**2},
+        "sim_config": dataclasses.asdict(self.config),
+        "params": {k: to_json_number(v) for k, v in dataclasses.asdict(self.params).items()
+                   if k != "planner"},
+        "planner_params": {k: to_json_number(v) for k, v in self.params.planner.items()},
+        "planner_settings": (None if self.config.planner_settings is None
+                             else dataclasses.asdict(self.config.planner_settings)),
+    }
+
+
+def to_json_number(leaf):
+  """A parameter leaf as JSON: a float, or a list of floats (one per robot)."""
+  arr = np.asarray(leaf, np.float64)
+  return float(arr) if arr.ndim == 0 else arr.tolist()
+
+
+def config_difference(recorded: dict | None, config: SimConfig) -> str | None:
+  """Where a recorded static config (``config.json``'s or a sweep schedule's ``sim_config``)
+  differs from ``config``, as ``field: A there, B now``; None when they agree (the execution
+  strategy aside: a run recorded on a GPU replays on a CPU). Records of older
+  versions are read as :func:`jaxplore.sim.config_from_dict` reads them; lengths in metres agree
+  to a relative 1e-9 (an older record kept R_e in cells)."""
+  if recorded is None:
+    return None
+  then = dataclasses.asdict(sim.config_from_dict(recorded))
+  now = dataclasses.asdict(config)
+  for name, value in now.items():
+    if name == "strategy":
+      continue  # how the batch ran, not what it computed; each backend has its own default
+    old = then.get(name)
+    if isinstance(value, float) and isinstance(old, (int, float)):
+      same = math.isclose(old, value, rel_tol=1e-9)
+    else:
+      same = old == value
+    if not same:
+      return f"{name}: {old!r} there, {value!r} now"
+  return None
+
+
+def default_max_steps(grid: GridMap, params: Params) -> int:
+  """A step budget generous for frontier exploration of the reachable area: about three sweeps
+  of the free area with a swath of twice the (capped) sensor range, plus turning time. With one
+  value per robot, the budget of the slowest, shortest-sighted robot (one budget per batch)."""
+  step_m = float(np.min(np.asarray(params.v_max, np.float64) * np.asarray(params.dt, np.float64)))
+  swath = 2.0 * min(float(np.min(np.asarray(params.r_max))), 3.0)
+  return int(3.0 * grid.free_area / swath / step_m) + 1000
+
+
+def _one_value(name: str, value):
+  """A static setting's value: per-robot values must all be equal (one compiled program)."""
+  if isinstance(value, tuple):
+    if len(set(value)) > 1:
+      raise ConfigError(f"{name} fixes the compiled program, so a batch takes one value of it, "
+                        f"got {sorted(set(value))} (a sweep runs each value as a group of its own)")
+    return value[0]
+  return value
+
+
+def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
+  """(traced weights, static settings) of ``planner_params`` for ``planner``: every name must be
+  one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
+  spec = get_planner(planner)
+  weights, settings = spec.split_overrides(planner_params)
+  weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v
+             for k, v in weights.items()}
+  settings = {k: _one_value(k, v) for k, v in settings.items()}
+  for name, value in settings.items():
+    default = getattr(spec.settings, name)
+    if (isinstance(default, int) and not isinstance(default, bool) and isinstance(value, float)
+        and not value.is_integer()):
+      raise ConfigError(f"planner {planner!r}: setting {name} must be an integer, got {value!r}")
+  return weights, settings
+
+
+def split_params(params) -> tuple[dict, dict]:
+  """(traced :class:`Params` overrides, static simulator settings) of ``params``: see
+  :data:`jaxplore.runspec.STATIC_PARAMS`."""
+  traced, static = {}, {}
+  for name, value in (params or {}).items():
+    if name in STATIC_PARAMS:
+      static[name] = float(_one_value(name, value))
+    else:
+      traced[name] = np.asarray(value, np.float32) if isinstance(value, tuple) else value
+  return traced, static
+
+
+def build_params(planner: str, preset, res: float, params=None, planner_params=None) -> Params:
+  """The traced :class:`Params` of a batch: the preset, the simulator parameters and the
+  planner's default weights with the given ones (static names are left out: they go to the
+  ``SimConfig``). Leaves are scalars, or arrays with one value per robot. No validation of
+  values."""
+  weights = dict(get_planner(planner).defaults)
+  weights.update(split_planner_params(planner, planner_params or {})[0])
+  return make_params(preset, res=res, planner=weights, **split_params(params)[0])
+
+
+def load_grid(spec: RunSpec) -> GridMap:
+  """The spec's truth map: a GridMap as given, else the world loaded (resampled to ``res``)."""
+  return spec.world if isinstance(spec.world, GridMap) else load_world(spec.world, res=spec.res)
+
+
+def resolve(spec: RunSpec) -> Resolved:
+  """Loads, sizes and validates everything a batch needs; no compute on the robots.
+
+  Raises:
+    ConfigError, MapError: the first bad setting, naming it (unknown planner or preset, a
+      planner name it does not have, a value out of range, a start inside or near a wall).
+  """
+  planner = get_planner(spec.planner)
+  grid = load_grid(spec)
+  params = build_params(spec.planner, spec.preset, grid.res, dict(spec.params),
+                        dict(spec.planner_params))
+  settings = planner.resolve_settings(split_planner_params(spec.planner, spec.planner_params)[1])
+  overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise, planner_settings=settings,
+                   **split_params(spec.params)[1])
+  for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
+    if getattr(spec, name) is not None:
+      overrides[name] = getattr(spec, name)
+  max_steps = spec.max_steps if spec.max_steps is not None else default_max_steps(grid, params)
+  if spec.pose_graph or (spec.pose_graph is None and planner.needs_pose_graph):
+    # Room for every keyframe the run can create (posegraph.keyframe_bound).
+    overrides["graph_nodes"] = posegraph.keyframe_bound(max_steps, params.v_max, params.w_max,
+                                                        params.dt, params.kf_dist, params.kf_rot)
+    if spec.graph_loops is not None:
+      overrides["graph_loops"] = spec.graph_loops
+  config = config_for(grid.shape, grid.res, params, preset=spec.preset, max_steps=max_steps,
+                      **overrides)
+  validate_params(params, config)
+  if planner.validate is not None:
+    planner.validate({k: np.asarray(v) for k, v in params.planner.items()}, params,
+                     sim.planner_context(config))
+  world = sim.make_world(grid, float(np.max(np.asarray(params.r_robot))),
+                         None if spec.start is None else spec.start[:2])
+  return Resolved(spec, grid, config, params, world, spec.start)
+
+
+__all__ = ["Batch", "Resolved", "build_params", "config_difference", "default_max_steps",
+           "load_grid", "resolve", "split_params", "split_planner_params", "to_json_number"]

@@ -1,0 +1,452 @@
+"""The run specification: every setting of one batch of robots, with one set of defaults.
+
+A :class:`RunSpec` is what a user asks for, before anything is loaded or sized: the world, the
+planner, how many robots and their seeds, the sensor/robot preset and every override. The
+command line (``jaxplore run``), TOML files, the rows of a sweep, ``jaxplore animate`` (from a
+results folder's ``config.json``) and the benchmarks all build one, and
+:func:`jaxplore.resolve.resolve` turns it into the device-side batch. Its field defaults are
+the only defaults of these settings; ``None`` means "derived" (from the world, the preset or the
+sensor range) where a field allows it.
+
+Construction checks every value that needs no map or planner registry (types, ranges, seeds,
+the start pose, parameter names), so a bad setting is refused before any compute; the rest
+(planner weights, ranges that depend on the grid) is checked by the resolver.
+
+Parameter names fall in four kinds (:func:`kind_of`): traced simulator parameters
+(:class:`jaxplore.config.Params` fields; sweeping them never recompiles), static simulator
+settings (:data:`STATIC_PARAMS`: each value is a compiled program of its own), a planner's
+traced weights (its registered ``defaults``) and a planner's static settings (the fields of its
+registered ``settings`` dataclass). ``params`` holds the first two, ``planner_params`` the last
+two (the command line's ``--set`` and ``--planner-set``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import types
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from jaxplore.config import PARAM_FIELDS, PRESETS, STRATEGIES, ConfigError
+
+# Simulator settings that fix a static shape exactly (not just a bound): Li's effective radius
+# R_e sets the radius of li2020's gain kernel (dpi_min derives it, Eq 5-6), so every value is a
+# compiled program of its own.
+STATIC_PARAMS = ("r_e", "dpi_min")
+SIM_PARAMS = PARAM_FIELDS + tuple(n for n in STATIC_PARAMS if n not in PARAM_FIELDS)
+SEED_LIMIT = 2**32  # a PRNG seed is a uint32: larger seeds would alias smaller ones
+AXES = ("world", "planner", "robots", "seed", "robot_seeds")  # what a sweep varies row by row
+_EMPTY: Mapping = types.MappingProxyType({})
+
+
+def _is_int(value) -> bool:
+  return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_number(value) -> bool:
+  return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+      value, (bool, np.bool_))
+
+
+def number(value, what: str) -> float:
+  """``value`` as a finite float, or :class:`ConfigError` naming ``what``."""
+  if not _is_number(value):
+    raise ConfigError(f"{what} must be a number, got {value!r}")
+  value = float(value)
+  if not math.isfinite(value):
+    raise ConfigError(f"{what} must be finite, got {value!r}")
+  return value
+
+
+def positive_int(value, what: str) -> int:
+  if not _is_int(value) or value < 1:
+    raise ConfigError(f"{what} must be a positive integer, got {value!r}")
+  return int(value)
+
+
+def seed_value(value, what: str = "seed") -> int:
+  """A PRNG seed: an integer in [0, 2**32) (``PRNGKey`` takes a uint32; larger seeds alias)."""
+  if not _is_int(value) or not 0 <= value < SEED_LIMIT:
+    raise ConfigError(f"{what} must be an integer in [0, 2**32), got {value!r}")
+  return int(value)
+
+
+def parse_start(start) -> tuple[float, float, float] | None:
+  """``"x,y"``, ``"x,y,theta"`` or a sequence of 2 or 3 numbers (metres, radians)."""
+  if start is None:
+    return None
+  try:
+    values = [float(v) for v in (start.split(",") if isinstance(start, str) else start)]
+  except (TypeError, ValueError):
+    values = []
+  if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values):
+    raise ConfigError(f"start must be 'x,y' or 'x,y,theta' in metres/radians, got {start!r}")
+  return (values[0], values[1], values[2] if len(values) == 3 else 0.0)
+
+
+def _value(value, what: str):
+  """A setting's value: a finite number, a bool (a planner's static switch), or one number per
+  robot (a tuple)."""
+  if isinstance(value, (bool, np.bool_)):
+    return bool(value)
+  if isinstance(value, (str, bytes)):
+    raise ConfigError(f"{what} must be a number, got {value!r}")
+  if _is_number(value) or (isinstance(value, np.ndarray) and value.ndim == 0):
+    return number(value.item() if isinstance(value, np.ndarray) else value, what)
+  if hasattr(value, "__iter__"):
+    values = tuple(number(v.item() if isinstance(v, np.generic) else v, what) for v in value)
+    if not values:
+      raise ConfigError(f"{what} has no values")
+    return values
+  raise ConfigError(f"{what} must be a number, got {value!r}")
+
+
+def _mapping(values, what: str) -> Mapping:
+  if values is None:
+    return _EMPTY
+  if not isinstance(values, Mapping):
+    raise ConfigError(f"{what} must map names to numbers, got {values!r}")
+  return types.MappingProxyType({str(k): _value(v, f"{what}[{k!r}]") for k, v in values.items()})
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+  """Every setting of one batch of robots (frozen; the field defaults are *the* defaults).
+
+  Attributes:
+    world: a built-in world name (``jaxplore maps``), a map_server YAML path, or a GridMap.
+    planner: a registered planner name.
+    robots: batch size.
+    seed: robot ``b``'s PRNG key is the ``b``-th of ``robots`` keys split from ``PRNGKey(seed)``.
+    robot_seeds: or one seed per robot, robot ``b``'s key being ``PRNGKey(robot_seeds[b])`` (the
+      same seed starts at the same pose in every setting: what a sweep uses).
+    preset: sensor/robot preset (``jaxplore.config.PRESETS``), or None for the bare defaults.
+    res: resample a loaded world to this resolution (m/cell; coarser only).
+    start: (x, y, θ) start pose of every robot, or None to sample one per robot.
+    max_steps: step budget per robot; None: from the world's free area and the robot's speed.
+    replan_every: steps between planning rounds of a robot following a path; None: the preset's.
+    path_capacity: waypoints a path may hold; None: the engine's default.
+    plan_window: side in cells of the window a ``windowed`` planner plans on first (0: the whole
+      grid always); None: sized from the sensor range.
+    pose_noise: noisy odometry, scans integrated at the dead-reckoned estimate.
+    pose_graph: keep each robot's SLAM pose graph and its metrics (:mod:`jaxplore.posegraph`);
+      None: when the planner reads one (ahmed, ags).
+    graph_loops: loop-closure capacity of the pose graph; None: the engine's default.
+    params: simulator parameters (``--set``): a number for every robot, or a tuple with one
+      number per robot.
+    planner_params: the planner's weights and static settings (``--planner-set``), likewise.
+    rate_interval: metres per interval of ``Std(E_r)``.
+    chunk_epochs: planning rounds per compiled call (progress and early-stop granularity; the
+      results do not depend on it); None: about 500 steps.
+    strategy: how the batch is executed, ``"per_robot"`` or ``"lockstep"``
+      (:data:`jaxplore.config.STRATEGIES`; the results do not depend on it); None or ``"auto"``:
+      per_robot on a CPU, lockstep on a GPU or TPU (:func:`jaxplore.config.resolve_strategy`).
+  """
+
+  world: Any = "office"
+  planner: str = "nearest_frontier"
+  robots: int = 16
+  seed: int = 0
+  robot_seeds: tuple[int, ...] | None = None
+  preset: str | None = "li2020"
+  res: float | None = None
+  start: tuple[float, float, float] | None = None
+  max_steps: int | None = None
+  replan_every: int | None = None
+  path_capacity: int | None = None
+  plan_window: int | None = None
+  pose_noise: bool = False
+  pose_graph: bool | None = None
+  graph_loops: int | None = None
+  params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
+  planner_params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
+  rate_interval: float = 1.0
+  chunk_epochs: int | None = None
+  strategy: str | None = None
+
+  def __post_init__(self):
+    put = lambda name, value: object.__setattr__(self, name, value)
+    world = self.world
+    if isinstance(world, os.PathLike):
+      put("world", str(world))
+    elif not isinstance(world, str) and type(world).__name__ != "GridMap":
+      raise ConfigError(f"world must be a world name, a map YAML path or a GridMap, got {world!r}")
+    if not isinstance(self.planner, str):
+      raise ConfigError(f"planner must be a planner name, got {self.planner!r}")
+    put("robots", positive_int(self.robots, "robots"))
+    put("seed", seed_value(self.seed))
+    if self.robot_seeds is not None:
+      if isinstance(self.robot_seeds, (str, bytes)) or not hasattr(self.robot_seeds, "__iter__"):
+        raise ConfigError(f"robot_seeds must be a list of seeds, got {self.robot_seeds!r}")
+      seeds = tuple(seed_value(s, "a robot seed") for s in self.robot_seeds)
+      if len(seeds) != self.robots:
+        raise ConfigError(f"robot_seeds has {len(seeds)} seeds for {self.robots} robots")
+      put("robot_seeds", seeds)
+    if self.preset is not None and self.preset not in PRESETS:
+      raise ConfigError(f"unknown preset {self.preset!r}; valid presets: "
+                        f"{', '.join(sorted(PRESETS))}")
+    if self.res is not None:
+      res = number(self.res, "res")
+      if res <= 0:
+        raise ConfigError(f"res must be a positive number of metres per cell, got {self.res!r}")
+      put("res", res)
+    put("start", parse_start(self.start))
+    for name in ("max_steps", "replan_every", "path_capacity", "chunk_epochs"):
+      if getattr(self, name) is not None:
+        put(name, positive_int(getattr(self, name), name))
+    if self.plan_window is not None:
+      if not _is_int(self.plan_window) or self.plan_window < 0:
+        raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
+      put("plan_window", int(self.plan_window))
+    if self.strategy is not None and self.strategy not in STRATEGIES:
+      raise ConfigError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
+    if not isinstance(self.pose_noise, (bool, np.bool_)):
+      raise ConfigError(f"pose_noise must be true or false, got {self.pose_noise!r}")
+    put("pose_noise", bool(self.pose_noise))
+    if self.pose_graph is not None:
+      if not isinstance(self.pose_graph, (bool, np.bool_)):
+        raise ConfigError(f"pose_graph must be true or false, got {self.pose_graph!r}")
+      put("pose_graph", bool(self.pose_graph))
+    if self.graph_loops is not None:
+      put("graph_loops", positive_int(self.graph_loops, "graph_loops"))
+    params = _mapping(self.params, "params")
+    unknown = sorted(set(params) - set(SIM_PARAMS))
+    if unknown:
+      raise ConfigError(f"unknown parameter(s) {unknown}; valid: {', '.join(SIM_PARAMS)}")
+    put("params", params)
+    put("planner_params", _mapping(self.planner_params, "planner_params"))
+    for what, values in (("parameter", params), ("planner parameter", self.planner_params)):
+      for name, value in values.items():
+        if isinstance(value, tuple) and len(value) != self.robots:
+          raise ConfigError(f"{what} {name} has {len(value)} values for {self.robots} robots")
+    rate = number(self.rate_interval, "rate_interval")
+    if rate <= 0:
+      raise ConfigError(f"rate_interval must be a positive number of metres, got {rate!r}")
+    put("rate_interval", rate)
+
+  @classmethod
+  def create(cls, **settings) -> RunSpec:
+    """A spec from keyword settings, where None means "the default" (what the CLI passes);
+    ``robot_seeds`` without ``robots`` gives one robot per seed."""
+    unknown = sorted(set(settings) - set(FIELDS))
+    if unknown:
+      raise ConfigError(f"unknown setting(s) {unknown}; valid: {', '.join(FIELDS)}")
+    settings = {k: v for k, v in settings.items() if v is not None}
+    seeds = settings.get("robot_seeds")
+    if "robots" not in settings and hasattr(seeds, "__len__") and not isinstance(seeds, str):
+      settings["robots"] = len(seeds)  # one robot per seed
+    return cls(**settings)
+
+  def to_json(self, fields=None) -> dict:
+    """The JSON form (``config.json``, a sweep's schedule); a GridMap world is named, not stored."""
+    out = {}
+    for name in fields or FIELDS:
+      value = getattr(self, name)
+      if name == "world" and not isinstance(value, str):
+        value = {"grid": value.name}
+      elif isinstance(value, Mapping):
+        value = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
+      elif isinstance(value, tuple):
+        value = list(value)
+      out[name] = value
+    return out
+
+  @classmethod
+  def from_json(cls, data: dict, **replace) -> RunSpec:
+    """The spec of :meth:`to_json`'s dict (missing fields take their defaults); ``replace``
+    overrides fields (e.g. the world, when the JSON names a GridMap)."""
+    unknown = sorted(set(data) - set(FIELDS))
+    if unknown:
+      raise ConfigError(f"unknown run setting(s) {unknown}; valid: {', '.join(FIELDS)}")
+    return cls(**{**data, **replace})
+
+
+FIELDS = tuple(f.name for f in dataclasses.fields(RunSpec))
+SHARED = tuple(name for name in FIELDS if name not in AXES)  # what every row of a sweep shares
+
+
+def planner_settings_of(planner_spec):
+  """A registered planner's static settings (a frozen dataclass instance), or None."""
+  return getattr(planner_spec, "settings", None)
+
+
+def kind_of(name: str, planner_spec) -> str | None:
+  """What a parameter name sets for a planner: ``"param"`` (traced simulator parameter),
+  ``"static"`` (static simulator setting), ``"weight"`` (the planner's traced weight),
+  ``"setting"`` (the planner's static setting), or None (nothing)."""
+  if name in STATIC_PARAMS:
+    return "static"
+  if name in PARAM_FIELDS:
+    return "param"
+  if name in planner_spec.defaults:
+    return "weight"
+  settings = planner_settings_of(planner_spec)
+  if settings is not None and name in {f.name for f in dataclasses.fields(settings)}:
+    return "setting"
+  return None
+
+
+def is_static(name: str, planner_spec) -> bool:
+  """Whether a value of ``name`` fixes the compiled program (rows with different values of it
+  cannot share a batch)."""
+  return kind_of(name, planner_spec) in ("static", "setting")
+
+
+# --------------------------------------------------------------------------- TOML
+
+# Keys of a settings file, shared by `jaxplore run --config` and `jaxplore sweep --config`.
+TOML_KEYS = {
+    "world": "a world name or map YAML path (a list of them in a sweep)",
+    "worlds": "a list of worlds (sweep)",
+    "planner": "a planner name (a list of them in a sweep)",
+    "planners": "a list of planners (sweep)",
+    "robots": "batch size (run)",
+    "seed": "PRNG seed of the batch (run)",
+    "robot_seeds": "one PRNG seed per robot, instead of seed (run)",
+    "seeds": "number of seeds, or a list of seeds (sweep)",
+    "preset": "sensor/robot preset",
+    "res": "planning resolution, m/cell",
+    "start": "x,y[,theta] start of every robot",
+    "max_steps": "step budget per episode",
+    "replan_every": "motion steps between planning rounds",
+    "path_capacity": "waypoints a path may hold",
+    "plan_window": "cells of the window a windowed planner plans on first (0: whole grid)",
+    "pose_noise": "noisy odometry (true/false)",
+    "pose_graph": "keep each robot's SLAM pose graph and its metrics (true/false)",
+    "graph_loops": "loop-closure capacity of the pose graph",
+    "rate_interval": "metres per interval of Std(E_r)",
+    "chunk_epochs": "planning rounds per compiled call",
+    "strategy": "auto, per_robot or lockstep: how the batch is executed",
+    "chunk_size": "robot-episodes per chunk (sweep)",
+    "out": "results folder",
+    "devices": "local devices to shard over",
+    "grid": "[grid] table: name = [values] (sweep)",
+    "random": "[random] table: name = {low=, high=, log=}, samples = N, seed = S (sweep)",
+    "set": "[set] table: simulator parameters",
+    "planner_set": "[planner_set] table: planner weights and settings",
+}
+RUN_ONLY = ("robots", "seed", "robot_seeds")
+SWEEP_ONLY = ("worlds", "planners", "seeds", "chunk_size", "grid", "random")
+RUN_TOML_KEYS = tuple(k for k in TOML_KEYS if k not in SWEEP_ONLY)
+
+
+def read_toml(path) -> tuple[dict, str]:
+  """(the parsed table, the path as text) of a settings file; :class:`ConfigError` when it is
+  missing, not a regular file, or not valid TOML."""
+  if sys.version_info >= (3, 11):
+    import tomllib
+  else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+  path = Path(path)
+  try:
+    text = path.read_text()
+  except FileNotFoundError:
+    raise ConfigError(f"settings file {str(path)!r} not found") from None
+  except (IsADirectoryError, PermissionError, UnicodeDecodeError) as err:
+    raise ConfigError(f"cannot read settings file {str(path)!r}: {err}") from None
+  try:
+    return tomllib.loads(text), str(path)
+  except tomllib.TOMLDecodeError as err:
+    raise ConfigError(f"{path}: not valid TOML: {err}") from None
+
+
+def settings_from_toml(data: dict, where: str, allowed) -> dict:
+  """Keyword settings of the keys of ``data`` that a run spec holds, typed and checked key by
+  key (the table names of the file become ``params`` and ``planner_params``); ``out`` and
+  ``devices`` too. Keys outside ``allowed`` are refused naming them."""
+  for key in data:
+    if key not in allowed:
+      random_key = key in ("samples", "random_seed") or (key == "seed" and "seed" not in allowed)
+      hint = (" (samples and seed of a random search go in the [random] table)"
+              if random_key and "random" in allowed else "")
+      raise ConfigError(f"{where}: unknown key {key!r}{hint}; valid keys: {', '.join(allowed)}")
+
+  def typed(key, kinds, what):
+    value = data[key]
+    if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
+      raise ConfigError(f"{where}: {key} must be {what}, got {value!r}")
+    return value
+
+  def table(key):
+    value = data[key]
+    if not isinstance(value, dict):
+      raise ConfigError(f"{where}: {key} must be a table ([{key}]), got {value!r}")
+    return value
+
+  kwargs: dict = {}
+  for key in ("preset",):
+    if key in data:
+      kwargs[key] = typed(key, str, "a preset name")
+  if "strategy" in data:
+    kwargs["strategy"] = typed("strategy", str, f"one of {', '.join(STRATEGIES)}")
+  for key in ("res", "rate_interval"):
+    if key in data:
+      kwargs[key] = number(typed(key, (int, float), "a number"), f"{where}: {key}")
+  for key in ("robots", "max_steps", "replan_every", "path_capacity", "chunk_epochs", "devices",
+              "graph_loops"):
+    if key in data:
+      value = typed(key, int, "a positive integer")
+      if value < 1:
+        raise ConfigError(f"{where}: {key} must be a positive integer, got {value!r}")
+      kwargs[key] = value
+  if "plan_window" in data:
+    value = typed("plan_window", int, "a non-negative integer")
+    if value < 0:
+      raise ConfigError(f"{where}: plan_window must be a non-negative integer, got {value!r}")
+    kwargs["plan_window"] = value
+  if "seed" in data:
+    kwargs["seed"] = seed_value(typed("seed", int, "an integer"), f"{where}: seed")
+  if "robot_seeds" in data:
+    kwargs["robot_seeds"] = [seed_value(s, f"{where}: a robot seed")
+                             for s in typed("robot_seeds", list, "a list of seeds")]
+  for key in ("pose_noise", "pose_graph"):
+    if key in data:
+      kwargs[key] = typed(key, bool, "true or false")
+  if "start" in data:
+    kwargs["start"] = typed("start", (str, list), "'x,y[,theta]' or [x, y, theta]")
+  if "out" in data:
+    kwargs["out"] = typed("out", str, "a folder path")
+  for key, target in (("set", "params"), ("planner_set", "planner_params")):
+    if key in data:
+      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}")
+                        for name, v in table(key).items()}
+  return kwargs
+
+
+def merge_settings(from_file: dict, explicit: dict) -> dict:
+  """Settings of a TOML file under explicit ones: an explicit value (not None) wins; tables
+  (grid, random, params, planner_params) merge name by name, explicit names winning."""
+  merged = dict(explicit)
+  for key, value in from_file.items():
+    mine = merged.get(key)
+    if key in ("grid", "random", "params", "planner_params"):
+      merged[key] = {**value, **(mine or {})}
+    elif mine is None:
+      merged[key] = value
+  return merged
+
+
+def load_run_config(path) -> dict:
+  """Reads a run's TOML file (the keys of :data:`RUN_TOML_KEYS`) into keyword settings of
+  :func:`jaxplore.run` (``out`` and ``devices`` included), validated key by key."""
+  data, where = read_toml(path)
+  kwargs = settings_from_toml({k: v for k, v in data.items() if k not in ("world", "planner")},
+                              where, RUN_TOML_KEYS)
+  for key in ("world", "planner"):
+    if key in data:
+      if not isinstance(data[key], str):
+        raise ConfigError(f"{where}: {key} must be a name, got {data[key]!r}")
+      kwargs[key] = data[key]
+  return kwargs
+
+
+__all__ = ["RunSpec", "FIELDS", "SHARED", "AXES", "STATIC_PARAMS", "SIM_PARAMS", "TOML_KEYS",
+           "RUN_TOML_KEYS", "kind_of", "is_static", "load_run_config",
+           "merge_settings", "number", "parse_start",
+           "positive_int", "read_toml",
+           "seed_value", "settings_from_toml", "planner_settings_of"]

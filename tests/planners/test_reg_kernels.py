@@ -1,0 +1,147 @@
+"""The REG family's geometry against oracles: a finely sampled ray, a plain Python reading of
+circular runs, Monte-Carlo sampling of the coverable width and a loop over the LSR definition."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from conftest import EAGER_AND_JIT
+
+from jaxplore.planners import reg_kernels as K
+
+BINS = 120
+
+
+def random_classes(rng, h=40, w=44):
+  """A belief of free space with unknown blobs and occupied specks (0 free, 1 unknown, 2 occ)."""
+  classes = np.zeros((h, w), np.int32)
+  classes[rng.random((h, w)) < 0.04] = K.OCCUPIED
+  classes[rng.random((h, w)) < 0.03] = K.UNKNOWN
+  classes[:, :3] = K.UNKNOWN
+  classes[30:, 25:] = K.UNKNOWN
+  return classes
+
+
+def sampled_ray(classes, uv, angle, radius, step=1e-3):
+  """Brute force: walk the ray in tiny steps; returns (rho, obstacle, near_corner) where
+  near_corner flags a ray passing within 2e-3 cells of a grid corner before it stops (there the
+  exact traversal's corner rule and a sampled ray may disagree)."""
+  h, w = classes.shape
+  d = np.array([math.cos(angle), math.sin(angle)])
+  s = np.arange(0.0, radius + 2.0, step)
+  points = np.asarray(uv)[None, :] + s[:, None] * d[None, :]
+  cols, rows = np.floor(points[:, 0]).astype(int), np.floor(points[:, 1]).astype(int)
+  inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+  kind = np.full(s.shape, K.OCCUPIED)
+  kind[inside] = classes[rows[inside], cols[inside]]
+  blocked = kind != K.FREE
+  stop = int(np.argmax(blocked)) if blocked.any() else len(s) - 1
+  t_stop = s[stop] if blocked.any() else np.inf
+  corner = np.abs(points - np.round(points)).max(axis=1) < 2e-3
+  return (min(t_stop, radius), bool(kind[stop] == K.OCCUPIED and t_stop < radius),
+          bool(corner[: stop + 1].any()))
+
+
+@EAGER_AND_JIT
+def test_lsr_rays_match_a_finely_sampled_ray(transform):
+  rng = np.random.default_rng(0)
+  rays = transform(lambda c, uv, r: K.lsr_rays(c, uv, r, n_cross=24, bins=BINS))
+  angles = np.asarray(K.bin_angles(BINS))
+  compared = mismatches = 0
+  for trial in range(3):
+    classes = random_classes(rng)
+    classes[18:23, 18:23] = K.FREE
+    uv = np.array([20.0, 20.0]) + rng.uniform(-1.5, 1.5, 2)
+    if trial == 2:  # from a blocked cell every ray has length 0 and meets an obstacle
+      classes[int(uv[1]), int(uv[0])] = K.OCCUPIED
+    radius = 12.0 + 8 * trial
+    got = rays(jnp.asarray(classes), jnp.asarray(uv, jnp.float32), radius)
+    if trial == 2:
+      assert bool(jnp.all(got.rho == 0.0)) and bool(jnp.all(got.obstacle))
+    for b in range(BINS):
+      rho, obstacle, near_corner = sampled_ray(classes, uv, angles[b], radius)
+      if near_corner:
+        continue
+      compared += 1
+      # The sampled ray enters a cell up to one step after the exact entry distance.
+      mismatches += not (abs(float(got.rho[b]) - rho) <= 2e-3 and bool(got.obstacle[b]) == obstacle)
+  assert compared > 0.9 * 3 * BINS
+  assert mismatches == 0
+
+
+def python_runs(mask):
+  """Maximal circular runs as (start, length), read off the circle bin by bin."""
+  n = len(mask)
+  if all(mask):
+    return [(0, n)]
+  if not any(mask):
+    return []
+  first_unset = mask.index(False)
+  runs = []
+  k = 0
+  while k < n:
+    b = (first_unset + k) % n
+    if mask[b] and not mask[(b - 1) % n]:
+      length = 0
+      while mask[(b + length) % n] and length < n:
+        length += 1
+      runs.append((b, length))
+    k += 1
+  return runs
+
+
+@EAGER_AND_JIT
+def test_circular_runs_match_a_python_reading(transform):
+  rng = np.random.default_rng(1)
+  runs_of = transform(K.circular_runs)
+  masks = [np.ones(BINS, bool), np.zeros(BINS, bool), np.arange(BINS) % 2 == 0]
+  wrap = np.zeros(BINS, bool)
+  wrap[:5] = wrap[-7:] = True  # one run across the seam
+  masks.append(wrap)
+  masks += [rng.random(BINS) < p for p in (0.2, 0.5, 0.8, 0.95)]
+  for mask in masks:
+    got = runs_of(jnp.asarray(mask))
+    count = int(got.count)
+    pairs = sorted(zip(np.asarray(got.start)[:count].tolist(), np.asarray(got.length)[:count].tolist()))
+    assert pairs == sorted(python_runs(mask.tolist()))
+    assert not np.any(np.asarray(got.valid)[count:]) and np.all(np.asarray(got.length)[count:] == 0)
+
+
+def test_coverable_width_matches_monte_carlo():
+  rng = np.random.default_rng(2)
+  psi = rng.uniform(-math.pi, math.pi, 200_000)
+  for r, radius, rho in ((0.5, 4.0, 4.0), (0.5, 4.0, 3.0), (0.3, 4.0, 4.0), (0.7, 2.0, 2.5),
+                         (0.5, 4.0, 1.0)):
+    # Points of the arc of radius rho at angle psi from the step direction; the next node at r·rho.
+    gap_sq = rho**2 + (r * rho) ** 2 - 2 * r * rho**2 * np.cos(psi)
+    expected = 2 * math.pi * np.mean(gap_sq <= radius**2)
+    got = float(K.coverable_width(jnp.float32(rho), jnp.float32(r), jnp.float32(radius)))
+    assert abs(got - expected) < 0.02, (r, radius, rho, got, expected)
+  np.testing.assert_allclose(float(K.coverable_width(4.0, 0.5, 4.0)), 2 * math.acos(0.25), rtol=1e-6)
+
+
+@EAGER_AND_JIT
+def test_inside_lsr_matches_the_definition(transform):
+  rng = np.random.default_rng(3)
+  rho = rng.uniform(0.5, 6.0, BINS).astype(np.float32)
+  centre = np.array([10.3, 7.9], np.float32)
+  points = (centre + rng.uniform(-7, 7, (500, 2))).astype(np.float32)
+  got = np.asarray(transform(K.inside_lsr)(jnp.asarray(points), jnp.asarray(centre), jnp.asarray(rho)))
+  width = 2 * math.pi / BINS
+  expected = []
+  for p in points:
+    dx, dy = p - centre
+    b = int(((math.atan2(dy, dx) + math.pi) // width)) % BINS
+    expected.append(math.hypot(dx, dy) <= rho[b])
+  assert got.tolist() == expected
+  assert 0 < got.sum() < len(points)
+
+
+def test_dilate_matches_scipy_maximum_filter():
+  from scipy import ndimage
+  rng = np.random.default_rng(4)
+  mask = rng.random((30, 37)) < 0.02
+  for cells in (0, 1, 4):
+    expected = ndimage.maximum_filter(mask, size=2 * cells + 1, mode="constant", cval=False)
+    np.testing.assert_array_equal(np.asarray(K.dilate(jnp.asarray(mask), cells)), expected)

@@ -1,0 +1,94 @@
+"""The host loop (``jaxplore.driver.drive``): early stop, the step budget, and Ctrl-C leaving the
+state and records of the same chunks. A stand-in chunk function replaces the engine, so the
+loop's bookkeeping is tested without compiling anything."""
+
+import chex
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxplore import driver
+
+
+@chex.dataclass(frozen=True)
+class State:
+  steps: chex.Array  # i32[B]
+  done: chex.Array  # bool[B]
+
+
+@chex.dataclass(frozen=True)
+class Record:
+  step: chex.Array  # [T, B]
+  done: chex.Array
+
+
+class Interrupt:
+  """A record leaf whose conversion to NumPy is where Ctrl-C lands (the host waits there for
+  the chunk to finish)."""
+
+  def __array__(self, *args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def chunks(chunk_steps=4, robots=2, finish_at=None, interrupt_at=None):
+  """A chunk function advancing every robot ``chunk_steps`` steps; robot ``b`` is done from
+  step ``finish_at[b]`` on; the ``interrupt_at``-th call's records cannot be read."""
+  calls = []
+
+  def compiled(world, params, state):
+    calls.append(1)
+    steps = state.steps[0] + jnp.arange(1, chunk_steps + 1)
+    limit = jnp.asarray(finish_at if finish_at is not None else [10**9] * robots)
+    done = steps[:, None] >= limit[None, :]
+    record = Record(step=jnp.broadcast_to(steps[:, None], (chunk_steps, robots)), done=done)
+    if len(calls) == interrupt_at:
+      record = record.replace(step=Interrupt())
+    return State(steps=state.steps + chunk_steps, done=done[-1]), record
+
+  return compiled, calls
+
+
+def start(robots=2):
+  return State(steps=jnp.zeros(robots, jnp.int32), done=jnp.zeros(robots, bool))
+
+
+def test_stops_once_every_robot_is_done_and_keeps_the_budget():
+  compiled, calls = chunks(finish_at=[5, 9])
+  rollout = driver.drive(compiled, None, None, start(), max_steps=100)
+  assert len(calls) == 3 and rollout.steps == 12 and not rollout.interrupted
+  assert rollout.state.done.all() and rollout.records.step.shape == (12, 2)
+  np.testing.assert_array_equal(rollout.records.step[:, 0], np.arange(1, 13))
+  # the budget cuts the records of the last chunk
+  compiled, calls = chunks()
+  rollout = driver.drive(compiled, None, None, start(), max_steps=10)
+  assert len(calls) == 3 and rollout.records.step.shape == (10, 2)
+
+
+def test_ctrl_c_keeps_the_state_and_records_of_the_same_finished_chunks():
+  seen = []
+  compiled, calls = chunks(interrupt_at=3)
+  rollout = driver.drive(compiled, None, None, start(), max_steps=100, interruptible=True,
+                         on_chunk=lambda rec, done: seen.append(rec.step.shape[0]))
+  assert len(calls) == 3 and rollout.interrupted and seen == [4, 4]
+  # The third chunk ran but its records never arrived: the state is the second chunk's.
+  assert rollout.steps == 8 and rollout.records.step.shape == (8, 2)
+  np.testing.assert_array_equal(rollout.state.steps, [8, 8])
+  assert rollout.records.step[-1, 0] == rollout.state.steps[0]
+
+
+def test_ctrl_c_before_the_first_chunk_keeps_the_reset_state():
+  compiled, _ = chunks(interrupt_at=1)
+  rollout = driver.drive(compiled, None, None, start(), max_steps=100, interruptible=True)
+  assert rollout.interrupted and rollout.records is None and rollout.steps == 0
+  np.testing.assert_array_equal(rollout.state.steps, [0, 0])
+
+
+def test_ctrl_c_propagates_unless_interruptible():
+  compiled, _ = chunks(interrupt_at=2)
+  with pytest.raises(KeyboardInterrupt):
+    driver.drive(compiled, None, None, start(), max_steps=100)
+
+
+def test_shard_count_divides_the_batch():
+  assert driver.shard_count(16, 2) == 2 and driver.shard_count(9, 2) == 1
+  assert driver.shard_count(6, 4) == 2 and driver.shard_count(3, 3) == 3

@@ -1,0 +1,84 @@
+"""One robot's motion step: its disc never touches the truth, and what it bumps into it learns."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import EAGER_AND_JIT, box_world
+from jaxplore import mapping, robot, sim
+from jaxplore.config import ConfigError, config_for, make_params
+
+R_ROBOT = 0.25
+
+
+def gap_world():
+  """A 3 m x 2 m box split by a wall at x = 1.5 m with a 0.2 m gap (narrower than the robot's
+  0.5 m disc)."""
+  grid = box_world(20, 30, res=0.1, walls=((0, 9, 15, 16), (11, 20, 15, 16)))
+  return grid
+
+
+@EAGER_AND_JIT
+def test_touched_cells_are_the_occupied_cells_within_the_radius(transform):
+  grid = gap_world()
+  params = make_params(res=0.1, r_robot=R_ROBOT)
+  config = config_for(grid.shape, grid.res, params, max_steps=10)
+  world = sim.make_world(grid, R_ROBOT)
+  rng = np.random.default_rng(0)
+  touched = transform(lambda xy: robot.touched_cells(config, world, params, xy))
+  for xy in rng.uniform([0.0, 0.0], [3.0, 2.0], (12, 2)).astype(np.float32):
+    cells, touching = jax.tree.map(np.asarray, touched(jnp.asarray(xy)))
+    # Brute force over a wide frame: outside the map counts as occupied.
+    framed = np.pad(grid.occupied, 5, constant_values=True)
+    rows, cols = np.nonzero(framed)
+    centres = np.stack([(cols - 5 + 0.5) * 0.1, (rows - 5 + 0.5) * 0.1], axis=1)
+    near = np.linalg.norm(centres - xy, axis=1) < R_ROBOT
+    expected = {(r - 5, c - 5) for r, c in zip(rows[near], cols[near])}
+    assert {tuple(c) for c in cells[touching]} == expected
+
+
+def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
+  """The belief says everything is free (the gap's walls unmapped): the path runs straight
+  through the gap. The robot must stop before the waypoint where its disc would touch the wall,
+  count the collision, learn the touched cells as occupied, and end its path there; then its
+  planner sees the gap closed."""
+  grid = gap_world()
+  params = make_params(res=0.1, r_robot=R_ROBOT, r_max=0.3, fov=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=40, n_beams=4, path_capacity=32)
+  world = sim.make_world(grid, R_ROBOT, (0.55, 1.05))
+  state = sim.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([0.55, 1.05, 0.0]))
+  path = np.stack([np.full(25, 10), np.arange(5, 30)], axis=1).astype(np.int32)
+  waypoints = np.concatenate([path, np.repeat(path[-1:], 7, axis=0)])
+  believed_free = jnp.full(grid.shape, -3.0, jnp.float32)
+  state = state.replace(logodds=believed_free,
+                        entropy=jnp.sum(mapping.entropy_of_logodds(believed_free)),
+                        waypoints=jnp.asarray(waypoints), path_len=jnp.int32(25),
+                        path_idx=jnp.int32(1), look_at=jnp.asarray(path[-1]))
+  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  occupied_centres = np.argwhere(grid.occupied)[:, ::-1] * 0.1 + 0.05
+  for _ in range(30):
+    state, _ = step(state)
+    xy = np.asarray(state.pose[:2])
+    assert np.linalg.norm(occupied_centres - xy, axis=1).min() >= R_ROBOT - 1e-6
+  assert int(state.collisions) == 1  # one contact taught it the wall
+  # What it learned closes the gap (rows 9-10 of the wall's column) for its planner.
+  view = sim.belief_view(config, params, state, sim.robot_view(config, world, state).cell)
+  assert not np.asarray(view.traversable)[9:11, 14:17].any()
+  assert float(state.pose[0]) < 1.5 - R_ROBOT + 0.05  # it stopped before the wall
+  assert int(state.path_len) < 25  # the path ended at the collision
+  believed_occupied = np.asarray(state.logodds) > float(mapping.logit(params.p_occ))
+  assert believed_occupied[:, 15].any()  # the wall it touched is in its belief now
+  h = np.asarray(mapping.entropy_of_logodds(state.logodds)).sum()
+  np.testing.assert_allclose(float(state.entropy), h, rtol=1e-4)
+
+
+def test_starts_count_the_map_edge_as_a_wall():
+  grid = box_world(20, 30, res=0.1)
+  edgeless = grid.__class__(np.zeros((20, 30), bool), 0.1, (0.0, 0.0), "open")
+  with pytest.raises(ConfigError, match="from a wall"):
+    sim.make_world(edgeless, 0.2, (0.05, 1.0))
+  tiny = grid.__class__(np.zeros((3, 3), bool), 0.1, (0.0, 0.0), "tiny")
+  with pytest.raises(ConfigError, match="clearance"):
+    sim.make_world(tiny, 0.4)
+  sim.make_world(edgeless, 0.2, (1.5, 1.0))  # far from every edge: fine

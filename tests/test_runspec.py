@@ -1,0 +1,140 @@
+"""The run specification: one set of defaults, checks before any compute, the JSON edge, and every
+setting reachable from ``run``, ``sweep``, their command lines and TOML files alike."""
+
+import dataclasses
+import textwrap
+import types
+
+import pytest
+
+from jaxplore import cli, runner, sweeps
+from jaxplore.config import ConfigError
+from jaxplore.runspec import (FIELDS, RUN_TOML_KEYS, SHARED, RunSpec, is_static, kind_of,
+                              load_run_config, merge_settings)
+from jaxplore.sweeps import schedule, settings
+
+FLAG_OF = {"params": "set", "planner_params": "planner_set"}  # the command line's table flags
+
+
+def test_create_takes_none_as_the_default_and_json_round_trips():
+  assert RunSpec.create(world=None, robots=None, preset=None) == RunSpec()
+  spec = RunSpec.create(world="lab", robots=3, start="1,2", params={"alpha": 1.5},
+                        planner_params={"k1": (0.1, 0.2, 0.3)}, planner="li2020")
+  assert spec.start == (1.0, 2.0, 0.0) and spec.params["alpha"] == 1.5
+  assert RunSpec.from_json(spec.to_json()) == spec
+  assert RunSpec.create(robot_seeds=[4, 9]).robots == 2  # one robot per seed
+  with pytest.raises(dataclasses.FrozenInstanceError):
+    spec.robots = 4
+
+
+@pytest.mark.parametrize("settings, match", [
+    (dict(seed=2**32), r"seed must be an integer in \[0, 2\*\*32\)"),
+    (dict(seed=-1), "seed must be"),
+    (dict(seed=2**64), "seed must be"),
+    (dict(robot_seeds=[0, 2**32]), "robot seed must be"),
+    (dict(robots=2, robot_seeds=[1, 2, 3]), "3 seeds for 2 robots"),
+    (dict(robots=0), "robots must be a positive integer"),
+    (dict(params={"r_max": float("nan")}), "r_max.*finite"),
+    (dict(params={"warp": 1.0}), "unknown parameter.*warp"),
+    (dict(robots=2, params={"alpha": (1.0, 2.0, 3.0)}), "alpha has 3 values for 2 robots"),
+    (dict(plan_window=-8), "plan_window"),
+    (dict(preset="hubble"), "unknown preset 'hubble'"),
+    (dict(start="abc"), "start must be"),
+    (dict(max_steps=0), "max_steps must be a positive integer"),
+    (dict(rate_interval=0.0), "rate_interval"),
+    (dict(robotz=3), r"unknown setting\(s\) \['robotz'\]"),
+])
+def test_bad_settings_are_refused_naming_them(settings, match):
+  with pytest.raises(ConfigError, match=match):
+    RunSpec.create(**settings)
+
+
+def test_kinds_of_names_route_weights_and_static_settings():
+  @dataclasses.dataclass(frozen=True)
+  class Knobs:
+    nodes: int = 64
+
+  planner = types.SimpleNamespace(defaults={"k1": 0.0}, settings=Knobs())
+  assert [kind_of(n, planner) for n in ("alpha", "r_e", "k1", "nodes", "gamma")] == [
+      "param", "static", "weight", "setting", None]
+  assert is_static("r_e", planner) and is_static("nodes", planner)
+  assert not is_static("alpha", planner) and not is_static("k1", planner)
+  bare = types.SimpleNamespace(defaults={})  # a planner with no static settings
+  assert kind_of("nodes", bare) is None
+
+
+def test_every_run_setting_is_a_flag_and_a_toml_key_of_run_and_sweep():
+  parser = cli.build_parser()
+  subparsers = next(a for a in parser._actions if a.dest == "command").choices
+  run_flags = {a.dest for a in subparsers["run"]._actions}
+  sweep_flags = {a.dest for a in subparsers["sweep"]._actions}
+  for name in FIELDS:
+    assert FLAG_OF.get(name, name) in run_flags, name
+    assert FLAG_OF.get(name, name) in RUN_TOML_KEYS, name
+  for name in SHARED:  # every row of a sweep shares these
+    assert FLAG_OF.get(name, name) in sweep_flags, name
+    assert FLAG_OF.get(name, name) in settings.SWEEP_TOML_KEYS, name
+    assert name in sweeps.RUN_KEYS, name
+  # the rest are the sweep's axes: worlds, planners and seeds (one robot per row)
+  assert set(FIELDS) - set(SHARED) == {"world", "planner", "robots", "seed", "robot_seeds"}
+  assert {"world", "planner", "seeds"} <= sweep_flags
+
+
+def test_run_config_file_and_flags(tmp_path, monkeypatch):
+  toml = tmp_path / "run.toml"
+  toml.write_text(textwrap.dedent("""
+      world = "lab"
+      planner = "li2020"
+      robot_seeds = [3, 5]
+      plan_window = 0
+      rate_interval = 2.0
+      chunk_epochs = 4
+      [set]
+      r_max = 4.0
+      [planner_set]
+      k1 = 0.1
+  """))
+  assert load_run_config(toml)["robot_seeds"] == [3, 5]
+  seen = {}
+  monkeypatch.setattr(runner, "run", lambda **kwargs: seen.update(kwargs) or 1 / 0)
+  with pytest.raises(ZeroDivisionError):  # stop once the settings reached jaxplore.run
+    cli.main(["run", "--config", str(toml), "--max-steps", "9", "--k2", "0.8", "--set",
+              "alpha=1.25", "--devices", "1", "--no-progress"])
+  assert seen["world"] == "lab" and seen["robot_seeds"] == [3, 5] and seen["plan_window"] == 0
+  assert seen["max_steps"] == 9 and seen["rate_interval"] == 2.0 and seen["chunk_epochs"] == 4
+  assert seen["params"] == {"r_max": 4.0, "alpha": 1.25}
+  assert seen["planner_params"] == {"k1": 0.1, "k2": 0.8}
+  spec = RunSpec.create(**{k: v for k, v in seen.items()
+                           if k not in ("out", "devices", "progress")})
+  assert spec.robots == 2 and spec.plan_window == 0
+  bad = tmp_path / "bad.toml"
+  bad.write_text("grid = 3\n")
+  with pytest.raises(ConfigError, match="unknown key 'grid'"):
+    load_run_config(bad)
+
+
+def test_sweep_takes_the_run_settings_on_its_command_line(monkeypatch):
+  seen = {}
+  monkeypatch.setattr(sweeps, "sweep", lambda **kwargs: seen.update(kwargs) or 1 / 0)
+  with pytest.raises(ZeroDivisionError):
+    cli.main(["sweep", "--planner", "li2020", "nearest_frontier", "--plan-window", "0",
+              "--path-capacity", "64", "--start", "1,1", "--rate-interval", "0.5", "--alpha", "1.5",
+              "--k1", "0.2", "--chunk-epochs", "2", "--devices", "1", "--no-progress"])
+  assert seen["plan_window"] == 0 and seen["path_capacity"] == 64 and seen["start"] == "1,1"
+  assert seen["rate_interval"] == 0.5 and seen["chunk_epochs"] == 2
+  assert seen["params"] == {"alpha": 1.5} and seen["planner_params"] == {"k1": 0.2}
+
+
+def test_a_sweeps_plan_window_reaches_its_static_config():
+  spec = sweeps.make_spec({"alpha": [1.0, 2.0]}, None, None, 0, [0], "open", "nearest_frontier",
+                          RunSpec(res=0.5, max_steps=30, plan_window=24))
+  made, resolved = schedule.make_schedule(spec, None, {}, None, 1)
+  assert made.groups[0].sim_config["plan_window"] == 24 and resolved[0].config.plan_window == 24
+  auto = dataclasses.replace(spec, base=RunSpec(res=0.5, max_steps=30))  # too big a window: off
+  assert schedule.make_schedule(auto, None, {}, None, 1)[0].groups[0].sim_config["plan_window"] == 0
+
+
+def test_merge_gives_explicit_values_precedence_and_merges_tables():
+  merged = merge_settings({"res": 0.2, "params": {"alpha": 1.0, "r_max": 3.0}, "out": "a"},
+                          {"res": None, "params": {"alpha": 2.0}, "out": "b"})
+  assert merged == {"res": 0.2, "params": {"alpha": 2.0, "r_max": 3.0}, "out": "b"}
