@@ -128,9 +128,10 @@ def _run(args, extra) -> int:
   result, code = _reporting_errors(compute)
   if code:
     return code
-  t = result.timing
+  t, c = result.timing, result.config
   print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
-        f"{t['robot_steps_per_s']:.0f} robot-steps/s")
+        f"{t['robot_steps_per_s']:.0f} robot-steps/s on {c['sharded_over']} x {c['device_kind']} "
+        f"({c['sim_config']['strategy']})")
   if result.out is not None:
     print(f"results in {result.out}")
   return 0
