@@ -97,6 +97,7 @@ def _spec_flags(args, extra, planners) -> dict:
               plan_window=args.plan_window, pose_noise=args.pose_noise,
               pose_graph=args.pose_graph, graph_loops=args.graph_loops,
               rate_interval=args.rate_interval, chunk_epochs=args.chunk_epochs,
+              strategy=args.strategy,
               params=params or None, planner_params=planner_params or None,
               out=args.out, devices=args.devices)
 
@@ -127,9 +128,10 @@ def _run(args, extra) -> int:
   result, code = _reporting_errors(compute)
   if code:
     return code
-  t = result.timing
+  t, c = result.timing, result.config
   print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
-        f"{t['robot_steps_per_s']:.0f} robot-steps/s")
+        f"{t['robot_steps_per_s']:.0f} robot-steps/s on {c['sharded_over']} x {c['device_kind']} "
+        f"({c['sim_config']['strategy']})")
   if result.out is not None:
     print(f"results in {result.out}")
   return 0
@@ -208,6 +210,10 @@ def _add_spec_flags(p):
                  help=f"metres per interval of Std(E_r) (default {RunSpec.rate_interval:g})")
   p.add_argument("--chunk-epochs", type=int, default=None,
                  help="planning rounds per compiled call (progress granularity)")
+  p.add_argument("--strategy", default=None, choices=("auto", "per_robot", "lockstep"),
+                 help="how the batch is executed: per_robot (robots one or a few at a time through "
+                 "the irregular stages) or lockstep (one kernel per stage for the whole batch); "
+                 "the results are the same (default auto: per_robot on CPU, lockstep on GPU/TPU)")
   p.add_argument("--set", action="append", metavar="NAME=VALUE",
                  help="a simulator parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 "
                  "--k1 0.2)")

@@ -230,7 +230,7 @@ def integrate_observation(logodds, robot, observed, reachable, params, after=0.0
   return logodds, jnp.sum(d_entropy), jnp.sum(d_covered)
 
 
-def per_robot(fn):
+def per_robot(fn, lockstep: bool = False):
   """Batches a one-robot update of per-robot grids as a loop over the robots, in place.
 
   ``fn(robot, grids, inputs) -> (grids, outputs)`` updates robot ``robot`` of ``grids`` (a pytree
@@ -243,11 +243,18 @@ def per_robot(fn):
   costs ~5x more per element than one robot's, and a data-dependent loop (a lidar walk that stops
   at the walls) runs for every robot until the slowest is done. One robot at a time, its maps
   stay in cache and each loop stops when that robot is done.
+
+  With ``lockstep`` (an accelerator: :func:`jaxplore.config.resolve_strategy`), ``vmap`` batches
+  the one-robot update as it is, one kernel per stage for the whole batch: a loop over the
+  robots would be a chain of small kernels as long as the batch.
   """
-  @jax.custom_batching.custom_vmap
-  def one(grids, inputs):
+  def plain(grids, inputs):
     grids, outputs = fn(0, jax.tree.map(lambda g: g[None], grids), inputs)
     return jax.tree.map(lambda g: g[0], grids), outputs
+
+  if lockstep:
+    return plain
+  one = jax.custom_batching.custom_vmap(plain)
 
   @one.def_vmap
   def batched(axis_size, in_batched, grids, inputs):

@@ -15,16 +15,28 @@ MEMORY_FRACTION = 0.8  # of the available memory a batch may use
 
 
 def estimate_bytes(config: SimConfig, robots: int) -> int:
-  """Rough peak memory of a run: per-robot state and planning masks, records, lidar buffers."""
+  """Rough peak memory of a run: per-robot state and planning masks, records, lidar buffers.
+
+  The ``per_robot`` strategy plans a few robots at a time (at most 64 robots' planning buffers
+  are counted), ``lockstep`` the whole batch at once.
+  """
   cells = config.height * config.width
   per_robot_state = cells * (4 + 4 + 1)  # log-odds, entropy map, blacklist
   per_robot_planning = cells * 4 * 8  # distances, predecessors, masks of one planning round
   records = config.max_steps * 10 * 4
   lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
-  return robots * (per_robot_state + records + lidar) + min(robots, 64) * per_robot_planning
+  planning = robots if config.strategy == "lockstep" else min(robots, 64)
+  return robots * (per_robot_state + records + lidar) + planning * per_robot_planning
 
 
 def available_bytes() -> int:
+  """Free memory for a batch: on a GPU or TPU, the free memory of the first local device (its
+  limit less what is in use); on a CPU, the host's free RAM."""
+  import jax
+  if jax.default_backend() != "cpu":
+    stats = jax.local_devices()[0].memory_stats() or {}
+    if "bytes_limit" in stats:
+      return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
   try:
     return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
   except (ValueError, OSError, AttributeError):

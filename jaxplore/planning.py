@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from jaxplore import mapping
 from jaxplore.config import Params, SimConfig, window_margin
+from jaxplore.graph import vmap_chunk
 from jaxplore.planners import base as planners_base
 from jaxplore.planners import window as planning_window
 from jaxplore.robot import EXHAUSTED, State, planner_context, robot_view
@@ -239,6 +240,63 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
   return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))
 
 
+def _plan_lockstep(config: SimConfig, world: World, params: Params, state: State, need,
+                   window: int):
+  """:func:`plan` for the robots with ``need`` set, as one round of the whole batch: every robot
+  plans (on the window of ``window`` cells around it, 0 = the whole grid) in one ``vmap``, with
+  the shortest-path solver over the whole batch at once, and only the robots with ``need`` and
+  a certified plan keep the answer. Returns the new state and which robots got their plan.
+
+  The work is the batch's whatever ``need`` says; on an accelerator that is one set of kernels
+  instead of a loop over chunks of robots. A robot's answer does not depend on the others', so
+  the robots that keep it get what :func:`_plan_robots` gives them.
+  """
+  shape = (window, window) if window else (config.height, config.width)
+
+  def plan_one(p, one):
+    cell = cell_of(one.pose_est[:2], world.origin, config.res)
+    origin = _window_origin(config, cell, window) if window else jnp.zeros((2,), jnp.int32)
+    if window:
+      one = crop_maps(one, origin, shape)
+    return _plan_round(config, world, p, one, origin)
+
+  with vmap_chunk(None):
+    outcome = jax.vmap(plan_one)(params, state)
+  ok = outcome.certified & need
+
+  def keep(old, new):
+    return jnp.where(ok.reshape(ok.shape + (1,) * (new.ndim - 1)), new, old)
+
+  small = {name: jax.tree.map(keep, getattr(state, name), getattr(outcome.state, name))
+           for name in _small_fields()}
+  robots = jnp.arange(need.shape[0])
+  rows, cols = outcome.marks[..., 0], outcome.marks[..., 1]
+  blacklist = state.blacklist.at[robots[:, None], rows, cols].max(
+      outcome.mark & ok[:, None], mode="drop", wrap_negative_indices=False)
+  return state.replace(blacklist=blacklist, **small), ok
+
+
+def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params, state: State
+                                ) -> State:
+  """:func:`plan_where_needed` as rounds of the whole batch (:func:`_plan_lockstep`): the window
+  round, then the whole-grid round for the plans the window could not certify; a round that no
+  robot needs is skipped (a ``lax.cond`` on the batch, not per robot)."""
+  need = needs_plan(config, state)
+
+  def whole_grid(args):
+    state, need = args
+    return _plan_lockstep(config, world, params, state, need, 0)[0]
+
+  def rounds(state):
+    left = need
+    if uses_window(config):
+      state, certified = _plan_lockstep(config, world, params, state, need, config.plan_window)
+      left = need & ~certified
+    return jax.lax.cond(jnp.any(left), whole_grid, lambda args: args[0], (state, left))
+
+  return jax.lax.cond(jnp.any(need), rounds, lambda s: s, state)
+
+
 def plan_where_needed(config: SimConfig, world: World, params: Params, state: State) -> State:
   """:func:`plan` for the robots of a batch that need it (:func:`needs_plan`).
 
@@ -253,7 +311,12 @@ def plan_where_needed(config: SimConfig, world: World, params: Params, state: St
   With a planning window (:func:`uses_window`), every robot first plans on the window around
   it, and only those whose answer the window cannot certify plan again on the whole grid: the
   work follows the distance to the nearest candidate instead of the grid's size.
+
+  With the ``lockstep`` strategy (``SimConfig.strategy``, an accelerator's default) the same
+  rounds run for the whole batch at once, masked (:func:`_plan_lockstep`).
   """
+  if config.strategy == "lockstep":
+    return _plan_where_needed_lockstep(config, world, params, state)
   need = needs_plan(config, state)
   if uses_window(config):
     state, certified = _plan_robots(config, world, params, state, need, config.plan_window,

@@ -115,7 +115,8 @@ def to_json_number(leaf):
 
 def config_difference(recorded: dict | None, config: SimConfig) -> str | None:
   """Where a recorded static config (``config.json``'s or a sweep schedule's ``sim_config``)
-  differs from ``config``, as ``field: A there, B now``; None when they agree. Records of older
+  differs from ``config``, as ``field: A there, B now``; None when they agree (the execution
+  strategy aside: a run recorded on a GPU replays on a CPU). Records of older
   versions are read as :func:`jaxplore.sim.config_from_dict` reads them; lengths in metres agree
   to a relative 1e-9 (an older record kept R_e in cells)."""
   if recorded is None:
@@ -123,6 +124,8 @@ def config_difference(recorded: dict | None, config: SimConfig) -> str | None:
   then = dataclasses.asdict(sim.config_from_dict(recorded))
   now = dataclasses.asdict(config)
   for name, value in now.items():
+    if name == "strategy":
+      continue  # how the batch ran, not what it computed; each backend has its own default
     old = then.get(name)
     if isinstance(value, float) and isinstance(old, (int, float)):
       same = math.isclose(old, value, rel_tol=1e-9)
@@ -209,7 +212,7 @@ def resolve(spec: RunSpec) -> Resolved:
   settings = planner.resolve_settings(split_planner_params(spec.planner, spec.planner_params)[1])
   overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise, planner_settings=settings,
                    **split_params(spec.params)[1])
-  for name in ("replan_every", "path_capacity", "plan_window"):
+  for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)
   max_steps = spec.max_steps if spec.max_steps is not None else default_max_steps(grid, params)

@@ -134,7 +134,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
 
   ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched; such a
   robot casts no beam. Under ``vmap`` the robots are processed one after the other with their
-  maps updated in place (:func:`mapping.per_robot` says why that beats a ``vmap`` here).
+  maps updated in place (:func:`mapping.per_robot` says why that beats a ``vmap`` on a CPU),
+  or, with the ``lockstep`` strategy, all at once.
   """
   res = config.res
   shape = (config.height, config.width)
@@ -187,7 +188,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   est_angles = angles - state.pose[2] + state.pose_est[2] if config.pose_noise else angles
   inputs = (params, state.pose, state.pose_est, state.cov, key, active, angles,
             sensor.directions(angles), sensor.directions(est_angles))
-  (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered) = mapping.per_robot(one)(
+  batched = mapping.per_robot(one, lockstep=config.strategy == "lockstep")
+  (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered) = batched(
       (state.logodds, state.entropy_map), inputs)
   return state.replace(pose_est=pose_est, cov=cov, logodds=logodds, entropy_map=entropy_map,
                        entropy=state.entropy + d_entropy, covered=state.covered + d_covered)

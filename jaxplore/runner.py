@@ -56,7 +56,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
       with a spec replace its fields. See :class:`jaxplore.runspec.RunSpec` for every field:
       ``world``, ``planner``, ``robots``, ``seed``, ``robot_seeds``, ``preset``, ``res``,
       ``start``, ``max_steps``, ``replan_every``, ``path_capacity``, ``plan_window``,
-      ``pose_noise``, ``params``, ``planner_params``, ``rate_interval``, ``chunk_epochs``.
+      ``pose_noise``, ``params``, ``planner_params``, ``rate_interval``, ``chunk_epochs``,
+      ``strategy``.
     out: results folder (created; checked before any compute); None writes nothing.
     progress: a progress bar over steps.
     devices: how many local devices to shard the batch over (default: all).
@@ -113,6 +114,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   resolved_config = {
       "jaxplore_version": __version__, "jax_version": jax.__version__, "numpy_version": np.__version__,
       "python": platform.python_version(), "devices": [str(d) for d in jax.devices()],
+      "backend": jax.default_backend(), "device_kind": jax.local_devices()[0].device_kind,
       "sharded_over": n_dev, "seed": spec.seed,
       "robot_seeds": None if spec.robot_seeds is None else list(spec.robot_seeds),
       "robots": robots, "planner": spec.planner, "preset": spec.preset,
@@ -138,13 +140,14 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
 
 def prepare(world=None, planner=None, robots=None, seed=None, preset=None, res=None, start=None,
             max_steps=None, replan_every=None, params=None, planner_params=None, pose_noise=None,
-            path_capacity=None, plan_window=None):
+            path_capacity=None, plan_window=None, strategy=None):
   """(grid, config, params, start) of a run: :func:`jaxplore.resolve.resolve` of these settings
   (None = :class:`RunSpec`'s default), for scripts that drive the engine themselves."""
   resolved = resolve(RunSpec.create(
       world=world, planner=planner, robots=robots, seed=seed, preset=preset, res=res, start=start,
       max_steps=max_steps, replan_every=replan_every, params=params, planner_params=planner_params,
-      pose_noise=pose_noise, path_capacity=path_capacity, plan_window=plan_window))
+      pose_noise=pose_noise, path_capacity=path_capacity, plan_window=plan_window,
+      strategy=strategy))
   return resolved.grid, resolved.config, resolved.params, resolved.start
 
 

@@ -32,7 +32,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from jaxplore.config import PARAM_FIELDS, PRESETS, ConfigError
+from jaxplore.config import PARAM_FIELDS, PRESETS, STRATEGIES, ConfigError
 
 # Simulator settings that fix a static shape exactly (not just a bound): Li's effective radius
 # R_e sets the radius of li2020's gain kernel (dpi_min derives it, Eq 5-6), so every value is a
@@ -143,6 +143,9 @@ class RunSpec:
     rate_interval: metres per interval of ``Std(E_r)``.
     chunk_epochs: planning rounds per compiled call (progress and early-stop granularity; the
       results do not depend on it); None: about 500 steps.
+    strategy: how the batch is executed, ``"per_robot"`` or ``"lockstep"``
+      (:data:`jaxplore.config.STRATEGIES`; the results do not depend on it); None or ``"auto"``:
+      per_robot on a CPU, lockstep on a GPU or TPU (:func:`jaxplore.config.resolve_strategy`).
   """
 
   world: Any = "office"
@@ -164,6 +167,7 @@ class RunSpec:
   planner_params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   rate_interval: float = 1.0
   chunk_epochs: int | None = None
+  strategy: str | None = None
 
   def __post_init__(self):
     put = lambda name, value: object.__setattr__(self, name, value)
@@ -199,6 +203,8 @@ class RunSpec:
       if not _is_int(self.plan_window) or self.plan_window < 0:
         raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
       put("plan_window", int(self.plan_window))
+    if self.strategy is not None and self.strategy not in STRATEGIES:
+      raise ConfigError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
     if not isinstance(self.pose_noise, (bool, np.bool_)):
       raise ConfigError(f"pose_noise must be true or false, got {self.pose_noise!r}")
     put("pose_noise", bool(self.pose_noise))
@@ -315,6 +321,7 @@ TOML_KEYS = {
     "graph_loops": "loop-closure capacity of the pose graph",
     "rate_interval": "metres per interval of Std(E_r)",
     "chunk_epochs": "planning rounds per compiled call",
+    "strategy": "auto, per_robot or lockstep: how the batch is executed",
     "chunk_size": "robot-episodes per chunk (sweep)",
     "out": "results folder",
     "devices": "local devices to shard over",
@@ -375,6 +382,8 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
   for key in ("preset",):
     if key in data:
       kwargs[key] = typed(key, str, "a preset name")
+  if "strategy" in data:
+    kwargs["strategy"] = typed("strategy", str, f"one of {', '.join(STRATEGIES)}")
   for key in ("res", "rate_interval"):
     if key in data:
       kwargs[key] = number(typed(key, (int, float), "a number"), f"{where}: {key}")

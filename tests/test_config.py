@@ -1,11 +1,15 @@
-"""Li's effective radius R_e from the lidar (Eq 5-6), and where config_for uses it."""
+"""Li's effective radius R_e from the lidar (Eq 5-6), and where config_for uses it; the
+execution strategy and its automatic default."""
 
+import dataclasses
 import math
 
+import jax
 import numpy as np
 import pytest
 
-from jaxplore.config import ConfigError, SimConfig, config_for, effective_radius, make_params
+from jaxplore.config import (STRATEGIES, ConfigError, SimConfig, config_for, effective_radius,
+                             make_params, resolve_strategy)
 
 
 def eq6_by_search(spacing, beam_step):
@@ -42,3 +46,22 @@ def test_config_for_derives_r_e_from_the_preset_unless_given():
   assert config_for((50, 60), 0.1, params, preset="li2020", r_e=0.75).r_e == 0.75
   assert config_for((50, 60), 0.1, params, preset="li2020", dpi_min=20.0).r_e == pytest.approx(2.849, abs=1e-3)
   assert config_for((50, 60), 0.1, params).r_e == SimConfig.r_e  # no preset: the default
+
+
+def test_auto_strategy_is_per_robot_on_cpu_and_lockstep_on_accelerators():
+  assert resolve_strategy("auto", backend="cpu") == "per_robot"
+  assert resolve_strategy("auto", backend="gpu") == "lockstep"
+  assert resolve_strategy("auto", backend="tpu") == "lockstep"
+  for forced in ("per_robot", "lockstep"):
+    assert resolve_strategy(forced, backend="cpu") == resolve_strategy(forced, backend="gpu") == forced
+
+
+def test_sim_config_resolves_auto_on_construction_and_refuses_unknown_strategies():
+  config = SimConfig(height=8, width=8, res=0.1)
+  assert config.strategy == resolve_strategy("auto", jax.default_backend())
+  assert config.strategy in STRATEGIES and config.strategy != "auto"
+  # "auto" and what it stands for here are one static setting: one jit cache entry.
+  assert config == dataclasses.replace(config, strategy=config.strategy)
+  assert dataclasses.replace(config, strategy="lockstep").strategy == "lockstep"
+  with pytest.raises(ConfigError, match="strategy must be one of"):
+    SimConfig(height=8, width=8, res=0.1, strategy="gpu")

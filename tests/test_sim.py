@@ -81,23 +81,26 @@ def test_same_keys_same_numbers(rooms, rooms_run):
 
 
 def test_a_robots_run_does_not_depend_on_how_plans_are_chunked(rooms):
-  """With sensor and odometry noise every robot's key matters; 5 robots planned one at a time
-  and in chunks of 3 (the second chunk padded) must end in the same states, keys included. The
-  plans go through a window: whole-grid leftovers plan one by one, unpadded."""
+  """With sensor and odometry noise every robot's key matters; 5 robots planned one at a time,
+  in chunks of 3 (the second chunk padded) and all at once in lockstep (the accelerator
+  strategy: every robot plans, those that need a plan keep it; the belief update a plain vmap)
+  must end in the same states, keys included. The plans go through a window: whole-grid
+  leftovers plan one by one, unpadded (in lockstep: in a second masked round)."""
   robots = 5
   params = make_params("li2020", res=rooms.res, r_max=3.0, range_noise=0.05)
   world = sim.make_world(rooms, float(params.r_robot))
   params = sim.broadcast_params(params, robots)
   keys = jax.random.split(jax.random.PRNGKey(3), robots)
   finals = []
-  for chunk in (1, 3):
+  for chunk, strategy in ((1, "per_robot"), (3, "per_robot"), (4, "lockstep")):
     config = config_for(rooms.shape, rooms.res, params, max_steps=36, replan_every=6, pose_noise=True,
-                        plan_window=32, plan_chunk=chunk)
+                        plan_window=32, plan_chunk=chunk, strategy=strategy)
     assert sim.uses_window(config)
     state = sim.reset_batch(config, world, params, keys)
     finals.append(sim.advance(config, world, params, state, 6)[0])
   assert int(np.asarray(finals[0].steps).min()) == 36  # every robot ran (and planned) throughout
   chex.assert_trees_all_equal(finals[0], finals[1])
+  chex.assert_trees_all_equal(finals[0], finals[2])
 
 
 @pytest.mark.parametrize("planner", ["nearest_frontier", "li2020"])

@@ -5,6 +5,7 @@ from jaxplore.graph.dijkstra import default_max_sweeps
 from jaxplore.graph.dijkstra import extract_path
 from jaxplore.graph.dijkstra import shortest_paths
 from jaxplore.graph.dijkstra import shortest_paths_batched
+from jaxplore.graph.dijkstra import vmap_chunk
 
 __all__ = [
     "ShortestPaths",
@@ -12,4 +13,5 @@ __all__ = [
     "extract_path",
     "shortest_paths",
     "shortest_paths_batched",
+    "vmap_chunk",
 ]

@@ -44,6 +44,7 @@ Performance notes (XLA:CPU, measured by ``experiments/bench_dijkstra.py``):
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from typing import NamedTuple
@@ -63,6 +64,27 @@ _NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1,
 _TIGHT_RTOL = 2.0**-20
 
 DEFAULT_CHUNK = 4
+
+# Grids per chunk when ``vmap`` batches ``shortest_paths`` (None: the whole batch at once); set at
+# trace time by ``vmap_chunk``.
+_vmap_chunk: list[int | None] = [DEFAULT_CHUNK]
+
+
+@contextlib.contextmanager
+def vmap_chunk(chunk: int | None):
+  """Within the context, ``vmap`` of :func:`shortest_paths` traces chunks of ``chunk`` grids
+  (None: the whole batch as one chunk, e.g. on a GPU, where a loop over chunks of 4 would be a
+  chain of small kernels as long as the batch).
+
+  A trace-time setting: it applies to what is traced inside the context, so a jitted caller
+  that enters it must key its own cache on it (the engine's ``SimConfig.strategy`` does).
+  """
+  previous = _vmap_chunk[0]
+  _vmap_chunk[0] = chunk
+  try:
+    yield
+  finally:
+    _vmap_chunk[0] = previous
 
 
 class ShortestPaths(NamedTuple):
@@ -326,7 +348,8 @@ def _single_grid_solver(max_sweeps: int):
       node_cost = jnp.broadcast_to(node_cost, (axis_size,) + node_cost.shape)
     if not source_batched:
       source = jnp.broadcast_to(source, (axis_size,) + source.shape)
-    result = shortest_paths_batched(node_cost, source, max_sweeps=max_sweeps)
+    chunk = _vmap_chunk[0] or axis_size
+    result = shortest_paths_batched(node_cost, source, chunk=chunk, max_sweeps=max_sweeps)
     return result, ShortestPaths(True, True, True, True)
 
   return solve
@@ -341,7 +364,8 @@ def shortest_paths(
   """Shortest paths from one source cell over an 8-connected grid.
 
   Written for one grid; ``jax.vmap`` of it runs ``shortest_paths_batched`` (chunks of
-  ``DEFAULT_CHUNK`` grids), which is several times faster on CPU than batching the loops.
+  ``DEFAULT_CHUNK`` grids, or as :func:`vmap_chunk` says), which is several times faster on CPU
+  than batching the loops.
 
   Args:
     node_cost: f32[H, W]; the cost of entering each cell per unit step, >= 0 (zeros allowed);

@@ -144,6 +144,9 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
   made, resolved = None, None
   if resume is not None:
     made = read_schedule(out)
+    # The first collective sets up the processes' communication, which waits only ~30 s for
+    # all of them: hold it now, while they are in step, not after chunks of unequal length.
+    execute.barrier("jaxplore-sweep-resume", n_processes)
   else:
     base = RunSpec.create(**{k: explicit.get(k) for k in RUN_KEYS})
     spec = make_spec(explicit["grid"], explicit["random"], explicit["samples"],

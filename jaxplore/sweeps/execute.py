@@ -7,7 +7,8 @@ table, which marks the chunk done), so an interruption loses at most the chunks 
 
 Several hosts: with ``jax.distributed`` initialised, process ``i`` of ``n`` runs the chunks
 ``k`` with ``k % n == i`` on its own devices, writing into the same folder (a filesystem shared
-by every host); the caller assembles the tables after :func:`barrier`.
+by every host); the caller assembles the tables after :func:`barrier`. Tested with two
+processes on one host (``tests/test_distributed.py``: the loopback address, one CPU device each).
 """
 
 from __future__ import annotations
@@ -98,8 +99,11 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
   """
   if out is not None:
     (out / "chunks").mkdir(parents=True, exist_ok=True)
-    for stray in (out / "chunks").glob("*.tmp"):
-      stray.unlink(missing_ok=True)  # a write cut short by an interruption
+    for stray in (out / "chunks").glob("chunk_*.tmp"):
+      # A write cut short by an interruption; each process clears its own chunks' only, since
+      # another process may be writing one of its own right now.
+      if int(stray.name[len("chunk_"):].split(".")[0]) % n_processes == process:
+        stray.unlink(missing_ok=True)
   names = schedule.names
   work, done_rows = [], 0
   for group_run in group_runs:

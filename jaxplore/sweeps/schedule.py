@@ -36,6 +36,9 @@ SCHEDULE_FORMAT = "jaxplore-sweep-schedule"
 LEGACY_FILE, LEGACY_FORMAT = "sweep_plan.json", "jaxplore-sweep-plan"  # before the rename
 SCHEDULE_VERSION = 1
 MAX_AUTO_CHUNK = 256
+# On a GPU or TPU (the lockstep strategy) a chunk's time grows far less than its size: fill the
+# device (the memory guard shrinks a chunk that does not fit).
+MAX_AUTO_CHUNK_ACCELERATOR = 4096
 
 
 @dataclasses.dataclass(frozen=True)
@@ -239,7 +242,8 @@ def resolve_group(spec: SweepSpec, group: Group, out: Path | None, grids: dict,
 def _chunk_size_for(config, rows: int, requested, n_dev: int) -> int:
   whole = -(-rows // n_dev) * n_dev  # every row in one chunk, a multiple of the devices
   if requested is None:
-    wanted = min(MAX_AUTO_CHUNK - MAX_AUTO_CHUNK % n_dev or n_dev, whole)
+    most = MAX_AUTO_CHUNK if config.strategy == "per_robot" else MAX_AUTO_CHUNK_ACCELERATOR
+    wanted = min(most - most % n_dev or n_dev, whole)
   else:
     if isinstance(requested, bool) or not isinstance(requested, (int, np.integer)) or requested < 1:
       raise ConfigError(f"chunk_size must be a positive integer, got {requested!r}")

@@ -1,6 +1,7 @@
 """Tests for jaxplore.graph.dijkstra against SciPy's Dijkstra on the same 8-connected graphs."""
 
 import math
+import re
 
 import chex
 import hypothesis
@@ -422,3 +423,18 @@ def test_extract_path_survives_a_cyclic_pred(transform):
   pred[0, 0], pred[0, 1] = 1, 0  # a 2-cycle
   cells, length = transform(lambda p, g: extract_path(p, g, 5))(pred, np.array([0, 0], np.int32))
   assert int(length) == 0
+
+
+def test_vmap_chunk_sets_how_vmap_batches_the_solver():
+  """The whole batch as one chunk (the lockstep strategy) solves every grid as chunks of 4 do."""
+  from jaxplore.graph import vmap_chunk
+  costs, sources = _batch(11)
+  default = jax.jit(jax.vmap(shortest_paths))(costs, sources)
+  with vmap_chunk(None):
+    whole = jax.jit(jax.vmap(shortest_paths))(costs, sources)
+    whole_jaxpr = str(jax.make_jaxpr(jax.vmap(shortest_paths))(costs, sources))
+  chex.assert_trees_all_equal(whole, default)
+  # The lax.map over chunks (a scan) runs once for the whole batch, twice for 7 grids in 4s.
+  default_jaxpr = str(jax.make_jaxpr(jax.vmap(shortest_paths))(costs, sources))
+  assert re.search(r"length=1\b", whole_jaxpr) and not re.search(r"length=2\b", whole_jaxpr)
+  assert re.search(r"length=2\b", default_jaxpr) and not re.search(r"length=1\b", default_jaxpr)
