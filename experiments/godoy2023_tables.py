@@ -16,7 +16,11 @@ Methods: ``ig`` and ``frt`` (the paper's two rows, with Eq 3/12's Euclidean ``d`
 and ``frt_path``, the same with ``d`` = path cost (``d_path = 1``: with Euclidean ``d`` and the
 engine's ~1 s replanning, robots can oscillate between two far goals until the step budget, see
 ``jaxplore/planners/godoy2023.py``); ``nearest_frontier`` and ``fd`` as extra rows. The ``*_path``
-rows reuse the compiled program of their planner (``d_path`` is a traced weight).
+rows reuse the compiled program of their planner (``d_path`` is a traced weight). These rows keep
+every frontier cluster and measure ``d`` to the candidate, as the paper describes. Not run by
+default: ``frt_released`` and ``ig_released_D{0.3,2,5.5}``, the authors' released code's reading
+(clusters shorter than ``min_frontier_size`` = 0.5 m dropped, ``d`` to the nearest frontier
+cell) with IG's ``D`` from their launch files (0.3, 2 m) and the Husky's lidar range (5.5 m).
 
 Weights: the paper's Table 2 values were tuned on 0.05 m maps, and both utilities count cells
 (Frt's A ~ 1/res, IG's I ~ 1/res²). ``--weights matched`` (default) scales C_i by
@@ -51,15 +55,25 @@ WORLDS = {
     "husky_playpen": (SHARED_MAPS / "husky_playpen.yaml", "godoy_open", 0.1),
     "tb3_house": (SHARED_MAPS / "tb3_house.yaml", "godoy_office", 0.1),
 }
-# label -> (planner, distance of Eq 3/12: "euclidean" as in the paper, or "path")
+# The paper keeps every frontier cluster and measures d to the candidate; the authors' released
+# code drops clusters shorter than 0.5 m and measures d to the nearest frontier cell, and its
+# launch files set D (expected_radius) to 0.3, 0.4 or 2 m.
+PAPER_READING = {"min_frontier_size": 0.0, "d_nearest": 0.0}
+RELEASED = {"min_frontier_size": 0.5, "d_nearest": 1.0}
+# label -> (planner, distance of Eq 3/12: "euclidean" as in the paper, or "path"; weights)
 METHODS = {
-    "ig": ("ig", "euclidean"),
-    "frt": ("frt", "euclidean"),
-    "ig_path": ("ig", "path"),
-    "frt_path": ("frt", "path"),
-    "nearest_frontier": ("nearest_frontier", None),
-    "fd": ("fd", None),
+    "ig": ("ig", "euclidean", PAPER_READING),
+    "frt": ("frt", "euclidean", PAPER_READING),
+    "ig_path": ("ig", "path", PAPER_READING),
+    "frt_path": ("frt", "path", PAPER_READING),
+    "nearest_frontier": ("nearest_frontier", None, {}),
+    "fd": ("fd", None, {}),
+    "frt_released": ("frt", "euclidean", RELEASED),
+    "ig_released_D0.3": ("ig", "euclidean", {**RELEASED, "D": 0.3}),
+    "ig_released_D2": ("ig", "euclidean", {**RELEASED, "D": 2.0}),
+    "ig_released_D5.5": ("ig", "euclidean", {**RELEASED, "D": 5.5}),
 }
+DEFAULT_METHODS = ("ig", "frt", "ig_path", "frt_path", "nearest_frontier", "fd")
 QUICK_WORLDS = ("open", "tb3_house")
 PAPER_RES = 0.05
 STATS = ("mean", "std", "min", "max", "Q1", "Q3")
@@ -84,7 +98,7 @@ def _parse_args(argv=None):
   parser.add_argument("--max-steps", type=int, default=None,
                       help="step budget per robot (default: jaxplore's, from the world's size)")
   parser.add_argument("--worlds", default=None, help=f"comma separated, from {', '.join(WORLDS)}")
-  parser.add_argument("--methods", default=",".join(METHODS),
+  parser.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                       help=f"comma separated, from {', '.join(METHODS)}")
   parser.add_argument("--weights", choices=("matched", "paper"), default="matched")
   parser.add_argument("--devices", type=int, default=2, help="host devices to shard each batch over")
@@ -131,10 +145,11 @@ def load_grid(label):
 
 def planner_weights(method, res, mode):
   """The planner and its weights for a method label: Table 2's, C_i matched to the resolution
-  (see the module docstring), ``d_path`` from the method."""
+  (see the module docstring), ``d_path`` and the paper's or the released frontier reading
+  (``min_frontier_size``, ``d_nearest``, ``D``) from the method."""
   from jaxplore.planners import get_planner
-  planner, distance = METHODS[method]
-  weights = dict(get_planner(planner).defaults)
+  planner, distance, overrides = METHODS[method]
+  weights = {**get_planner(planner).defaults, **overrides}
   if distance is not None:
     weights["d_path"] = float(distance == "path")
   if mode == "matched" and planner == "frt":
@@ -183,7 +198,7 @@ def write_table(summary, episodes, grids, args, path):
            "",
            "Methods: `ig`, `frt` = Eq 3 / Eq 12 with the paper's Euclidean d; `ig_path`, `frt_path` = the "
            "same with d = path cost (`d_path = 1`), which removes the oscillation between far goals that "
-           "Euclidean d allows under the engine's ~1 s replanning (the authors replanned at 0.1 Hz); "
+           "Euclidean d allows under the engine's ~1 s replanning (the authors' launch files replan at 0.33 Hz, and on arrival); "
            "`nearest_frontier`, `fd` = extra rows. The paper's rows are Gazebo runs (Husky on the "
            "Clearpath playpen, Table 3; TurtleBot3 on office_world with its central rooms closed off, "
            "Table 4): compare shapes (IG faster than Frt, smaller spread), not absolute times.",
