@@ -232,7 +232,8 @@ def test_k1_below_k2_is_enforced():
                     params_for(), CONFIG)
 
 
-def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders():
+@pytest.mark.parametrize("region", ["visible", "disc"])
+def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders(region):
   params = params_for()
   _, l, entropy = belief(6)
   view = make_view(l, entropy, params)
@@ -241,7 +242,8 @@ def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders():
   gains[:, -1, :] = 1.0  # only the last row and column gain: a disc at (1, 1) never reaches them
   gains[:, :, -1] = 1.0
   sp = shortest_paths(jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32), robot.cell)
-  sums, _, _ = TREE(ROAD_MARKS, view, robot, params, sp.pred, jnp.asarray(gains))
+  ctx = dataclasses.replace(ROAD_MARKS, settings=li2020.Settings(road_mark_m=0.5, region=region))
+  sums, _, _ = TREE(ctx, view, robot, params, sp.pred, jnp.asarray(gains))
   assert float(sums[1 * W + 1, 0]) == 0.0 and float(sums[1 * W + 1, 1]) == 0.0
 
 
