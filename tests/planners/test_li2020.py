@@ -194,7 +194,7 @@ def test_tree_gain_equals_exact_union_on_open_ground():
   robot = robot_at((12, 15))
   sp = shortest_paths(cost, robot.cell)
   gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
-  sums, _, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
+  sums, _, _ = TREE(CONFIG, view, robot, params, sp.pred, gains)
   for goal in [(12, 25), (4, 15), (20, 5), (5, 28)]:
     cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
     exact = float(li2020.path_gain(gains[0], cells, n, CONFIG.r_e_cells))
