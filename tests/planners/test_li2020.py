@@ -2,6 +2,7 @@
 the exact union of swept cells (Eq 20)."""
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -193,7 +194,7 @@ def test_tree_gain_equals_exact_union_on_open_ground():
   robot = robot_at((12, 15))
   sp = shortest_paths(cost, robot.cell)
   gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
-  sums, _, _ = li2020.tree_quantities(CONFIG, view, robot, params, sp.pred, gains)
+  sums, _, _ = TREE(CONFIG, view, robot, params, sp.pred, gains)
   for goal in [(12, 25), (4, 15), (20, 5), (5, 28)]:
     cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
     exact = float(li2020.path_gain(gains[0], cells, n, CONFIG.r_e_cells))
@@ -231,7 +232,8 @@ def test_k1_below_k2_is_enforced():
                     params_for(), CONFIG)
 
 
-def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders():
+@pytest.mark.parametrize("region", ["visible", "disc"])
+def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders(region):
   params = params_for()
   _, l, entropy = belief(6)
   view = make_view(l, entropy, params)
@@ -240,7 +242,8 @@ def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders():
   gains[:, -1, :] = 1.0  # only the last row and column gain: a disc at (1, 1) never reaches them
   gains[:, :, -1] = 1.0
   sp = shortest_paths(jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32), robot.cell)
-  sums, _, _ = TREE(ROAD_MARKS, view, robot, params, sp.pred, jnp.asarray(gains))
+  ctx = dataclasses.replace(ROAD_MARKS, settings=li2020.Settings(road_mark_m=0.5, region=region))
+  sums, _, _ = TREE(ctx, view, robot, params, sp.pred, jnp.asarray(gains))
   assert float(sums[1 * W + 1, 0]) == 0.0 and float(sums[1 * W + 1, 1]) == 0.0
 
 
@@ -336,3 +339,121 @@ def test_two_pockets_behind_slits_make_a_two_cycle_that_the_progress_timeout_end
   # ... until 20 m without a newly known cell end the episode.
   assert not bool(plan.valid) and bool(memory["stuck"])
   assert 20.0 - 3.5 <= driven <= 20.0 + 3.5
+
+
+VISIBLE = jax.jit(li2020.visible_gains, static_argnums=2)
+
+
+_LOS_CACHE = {}
+
+
+def line_of_sight_sums(gains, occupied, radius, samples=512):
+  """Cached :func:`_line_of_sight_sums` (the eager and the jitted test share one brute force)."""
+  key = (gains.tobytes(), occupied.tobytes(), radius)
+  if key not in _LOS_CACHE:
+    _LOS_CACHE[key] = _line_of_sight_sums(gains, occupied, radius, samples)
+  return _LOS_CACHE[key]
+
+
+def _line_of_sight_sums(gains, occupied, radius, samples=512):
+  """Brute force: at every cell v, the sum of ``gains`` over the cells c within ``radius`` such
+  that no occupied cell other than v and c holds a point of the segment between their centres
+  (sampled at ``samples`` points; a power of two never lands exactly on a cell corner). Also
+  returns, per v, the number of shadow-edge cells: cells of the disc seen from v with a
+  4-neighbour in the disc that is not, or the other way round."""
+  h, w = occupied.shape
+  t = (np.arange(samples) + 0.5) / samples
+  out = np.zeros(gains.shape)
+  edges = np.zeros((h, w), int)
+  r = int(math.floor(radius))
+  for vi in range(h):
+    for vj in range(w):
+      seen = np.full((2 * r + 3, 2 * r + 3), -1)  # -1 outside the disc, else 0 / 1
+      for di in range(-r, r + 1):
+        for dj in range(-r, r + 1):
+          ci, cj = vi + di, vj + dj
+          if di * di + dj * dj > radius * radius or not (0 <= ci < h and 0 <= cj < w):
+            continue
+          si = np.floor(vi + t * di + 0.5).astype(int)
+          sj = np.floor(vj + t * dj + 0.5).astype(int)
+          inner = ~(((si == vi) & (sj == vj)) | ((si == ci) & (sj == cj)))
+          seen[di + r + 1, dj + r + 1] = not occupied[si[inner], sj[inner]].any()
+          if seen[di + r + 1, dj + r + 1]:
+            out[:, vi, vj] += gains[:, ci, cj]
+      core = seen[1:-1, 1:-1]
+      differs = np.zeros(core.shape, bool)
+      for a, b in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        other = seen[a:a + core.shape[0], b:b + core.shape[1]]
+        differs |= (other >= 0) & (other != core)
+      edges[vi, vj] = int((differs & (core >= 0)).sum())
+  return out, edges
+
+
+@pytest.mark.parametrize("transform", [lambda f: f, lambda f: VISIBLE], ids=["eager", "jit"])
+def test_visible_region_against_a_brute_force_line_of_sight_count(transform):
+  rng = np.random.default_rng(11)
+  gains = rng.uniform(0.1, 1.0, (2, 20, 24)).astype(np.float32)
+  radius = 6.0
+  # A straight wall across the whole grid: exact over the cells off the wall (the wall's own
+  # cells may differ: a chain reaches a wall cell from the side where the segment to its centre
+  # grazes a neighbouring wall cell first).
+  wall = np.zeros((20, 24), bool)
+  wall[9, :] = True
+  gains[:, wall] = 0.0
+  full, _ = transform(li2020.visible_gains)(jnp.asarray(gains), jnp.asarray(wall), radius)
+  np.testing.assert_allclose(np.asarray(full)[:, ~wall], line_of_sight_sums(gains, wall, radius)[0][:, ~wall],
+                             rtol=1e-5)  # viewpoints off the wall (a robot never stands in one)
+  # Rooms with a door, a pillar and a diagonal wall: the 8-connected sight lines of ray_tree
+  # depart from the segments by up to ~1 cell, so shadow edges may differ by a cell.
+  rooms = wall.copy()
+  rooms[9, 10:13] = False  # a door
+  rooms[3:5, 4:6] = True  # a pillar
+  rooms[:9, 17] = True
+  for k in range(7):  # a diagonal wall in the lower half
+    rooms[12 + k, 4 + k] = True
+  ones = np.ones((1, 20, 24), np.float32)
+  full, _ = transform(li2020.visible_gains)(jnp.asarray(ones), jnp.asarray(rooms), radius)
+  ref, edges = line_of_sight_sums(ones, rooms, radius)
+  got, ref = np.asarray(full)[0], ref[0]
+  viewpoints = ~rooms
+  assert (ref < np.asarray(VISIBLE(jnp.asarray(ones), jnp.zeros((20, 24), bool), radius)[0])[0]).any()
+  # Region sizes differ by less than the shadow edges' cells, and by 2.8 % on average.
+  assert (np.abs(got - ref) <= edges)[viewpoints].all()
+  assert np.abs(got - ref)[viewpoints].sum() <= 0.05 * ref[viewpoints].sum()
+
+
+def test_entropy_behind_a_known_wall_makes_the_disc_region_cycle_and_not_the_visible_one():
+  """The livelock: a mapped corridor under a known wall, behind it unknown space made observable
+  by two cells seen long ago. The whole-disc region counts the unknown cells near them from the
+  corridor, which no scan from there can see: the robot drives from one place to the other and
+  back over a belief that never changes, until the progress timeout. The visible region counts
+  none of them: with nothing else to explore it ends at once, never returning. Jitted only
+  (eagerly the 20-odd plans take ~100 s); the plan's eager path is tested above."""
+  params = params_for(progress_m=20.0)
+  l = np.zeros((H, W), np.float32)  # unknown
+  l[10:16, 1:33] = -3.0  # the mapped corridor
+  l[9, :] = l[16, :] = l[:, 0] = l[:, -1] = 3.0  # its known walls
+  l[8, 6] = l[8, 24] = -3.0  # two cells seen long ago behind the upper wall
+  entropy = np.where(l == 0.0, math.log(2), 0.05).astype(np.float32)
+  view = make_view(l, entropy, params)
+  runs = {}
+  for region in ("disc", "visible"):
+    ctx = dataclasses.replace(CONFIG, r_e_cells=5.0, settings=li2020.Settings(region=region))
+    plan_fn = functools.partial(PLAN, ctx)
+    memory = li2020.init_memory(ctx, params)
+    cell, goals = (12, 6), []
+    for i in range(12):
+      pose = jnp.asarray([(cell[1] + 0.5) * ctx.res, (cell[0] + 0.5) * ctx.res, 0.0], jnp.float32)
+      plan, memory = plan_fn(view, robot_at(cell).replace(pose=pose), params,
+                             jax.random.PRNGKey(i), memory)
+      if not bool(plan.valid):
+        break
+      cell = tuple(int(v) for v in np.asarray(plan.goal))
+      goals.append(cell)
+    runs[region] = goals, bool(memory["stuck"])
+  goals, stuck = runs["disc"]
+  sides = ["left" if c < 17 else "right" for _, c in goals]
+  assert len(goals) >= 6 and all(a != b for a, b in zip(sides, sides[1:]))  # the 2-cycle
+  assert len(set(goals)) == 2 and stuck  # between two cells, ended by the progress timeout
+  goals, stuck = runs["visible"]
+  assert goals == [] and not stuck  # nothing visible to gain: no plan, not stuck
