@@ -13,6 +13,7 @@ BLUEPRINTS = SHARED_MAPS / "explore_bench"
 NAMES = ("corner", "corridor", "loop", "loop_with_corridor", "room", "room_with_corner")
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 @pytest.mark.skipif(not BLUEPRINTS.exists(), reason="the shared maps folder is not beside this checkout")
 @pytest.mark.parametrize("name", NAMES)
 def test_blueprint_runs_with_the_explore_bench_preset(name):

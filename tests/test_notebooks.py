@@ -55,6 +55,7 @@ def test_quickstart(tiny, tmp_path):
   assert ns["config"]["robots"] == 2 and ns["config"]["world"]["name"] == "tiny_office"
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_sweep_analysis(tiny, tmp_path):
   ns = tiny("sweep_analysis.py")
   out = tmp_path / "sweep_analysis"

@@ -108,6 +108,7 @@ def test_plan_where_needed_with_a_window_plans_like_the_whole_grid(explored):
   np.testing.assert_array_equal(with_window.key, whole.key)
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_episode_with_a_window_completes_like_the_whole_grid():
   grid = generate.office(14.0, 10.0, 0.1, seed=3)
   params = make_params("li2020", res=grid.res, r_max=1.5, fov=2 * np.pi)

@@ -89,6 +89,7 @@ def test_absurd_batch_is_refused_with_the_numbers():
     jaxplore.run(**dict(SMALL, robots=10_000_000))
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_cli_run_and_maps(tmp_path, capsys):
   out = tmp_path / "cli"
   code = cli.main(["run", "--world", "lab", "--robots", "2", "--max-steps", "20", "--replan-every", "5",

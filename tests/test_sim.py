@@ -80,6 +80,7 @@ def test_same_keys_same_numbers(rooms, rooms_run):
   chex.assert_trees_all_equal(state.logodds, state2.logodds)
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_a_robots_run_does_not_depend_on_how_plans_are_chunked(rooms):
   """With sensor and odometry noise every robot's key matters; 5 robots planned one at a time,
   in chunks of 3 (the second chunk padded) and all at once in lockstep (the accelerator

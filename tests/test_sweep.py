@@ -220,6 +220,7 @@ def test_sharded_sweep_equals_unsharded_bit_for_bit(reference, tmp_path):
     pd.testing.assert_frame_equal(mine, theirs, check_exact=True)
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_toml_random_search_and_several_planners(reference, tmp_path):
   toml = tmp_path / "sweep.toml"
   toml.write_text(textwrap.dedent(f"""

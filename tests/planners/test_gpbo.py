@@ -7,6 +7,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
@@ -159,6 +160,7 @@ def test_a_mapped_room_without_frontiers_ends_the_exploration():
   np.testing.assert_array_equal(np.asarray(new_memory), np.asarray(memory))
 
 
+@pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_gpbo_explores_a_box_world_with_rooms_to_completion():
   from conftest import box_world
   from jaxplore import sim
