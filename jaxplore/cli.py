@@ -83,7 +83,7 @@ def _reporting_errors(compute):
     print(f"jaxplore: error: {err}", file=sys.stderr)
     return None, 2
   except KeyboardInterrupt as err:
-    print(f"jaxplore: {err}", file=sys.stderr)
+    print(f"jaxplore: {err or 'interrupted'}", file=sys.stderr)
     return None, 130
 
 
@@ -305,10 +305,10 @@ def main(argv=None) -> int:
   args, extra = parser.parse_known_args(argv)
   if extra and args.command not in ("run", "sweep"):
     parser.error(f"unrecognized arguments: {' '.join(extra)}")
-  if args.command == "run":
-    return _run(args, extra)
-  if args.command == "sweep":
-    return _sweep(args, extra)
+  if args.command in ("run", "sweep"):
+    from jaxplore import interrupts
+    with interrupts.deferred():  # Ctrl-C acted on between JAX calls, start-up included
+      return (_run if args.command == "run" else _sweep)(args, extra)
   if args.command == "maps":
     from jaxplore.maps import MapError, load_world, render_png, world_table
     if args.render:

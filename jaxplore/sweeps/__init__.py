@@ -32,7 +32,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from jaxplore import driver, results
+from jaxplore import driver, interrupts, results
 from jaxplore.config import ConfigError
 from jaxplore.memory import MEMORY_FRACTION, fit_chunk
 from jaxplore.runspec import SHARED, RunSpec, merge_settings
@@ -65,6 +65,7 @@ class SweepResult:
   out: Path | None = None
 
 
+@interrupts.deferred()
 def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False, *, random=None,
           samples=None, random_seed=None, worlds=None, planners=None, chunk_size=None, resume=None,
           config=None, progress=True, devices=None, distributed=False, **run_kwargs) -> SweepResult:

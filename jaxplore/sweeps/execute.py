@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from jaxplore import driver, results
+from jaxplore import driver, interrupts, results
 from jaxplore.resolve import Resolved
 from jaxplore.sweeps.schedule import Chunk, Group, Schedule, chunk_paths
 
@@ -51,6 +51,7 @@ def run_chunk(group_run: GroupRun, chunk: Chunk, n_dev: int, tally: dict, times:
       group_run.compiled = driver.compile_advance(config, group.chunk_epochs, n_dev, world,
                                                   batch.params, state)
     times["compile_s"] += time.perf_counter() - t0
+  interrupts.check("interrupted while compiling")
   rollout = driver.drive(group_run.compiled, world, batch.params, state, config.max_steps)
   times["run_s"] += rollout.run_s
   episodes, curves = results.tables(config, resolved.grid, world, rollout.state, rollout.records,
@@ -151,6 +152,7 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
       if bar is not None:
         bar.update(len(chunk.rows))
         bar.set_postfix(chunk=f"{i + 1}/{len(work)}", compiles=tally.get("count", 0))
+      interrupts.check("interrupted")
   except KeyboardInterrupt:
     if bar is not None:
       bar.close()
