@@ -14,6 +14,19 @@ from jaxplore.config import ConfigError, SimConfig
 MEMORY_FRACTION = 0.8  # of the available memory a batch may use
 
 
+def _largest_part(config: SimConfig) -> str:
+  """What makes one robot's estimate large, naming the setting behind it."""
+  cells = config.height * config.width
+  parts = {
+      f"the {config.height}x{config.width} grid at {config.res:g} m/cell (--res)":
+          cells * (4 + 4 + 1 + 4 * 8),
+      f"the per-step records of max_steps={config.max_steps}": config.max_steps * 10 * 4,
+      f"the lidar buffers of {config.n_beams} beams of {config.max_range_cells} cells (r_max)":
+          config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6,
+  }
+  return max(parts, key=parts.get)
+
+
 def estimate_bytes(config: SimConfig, robots: int) -> int:
   """Rough peak memory of a run: per-robot state and planning masks, records, lidar buffers.
 
@@ -53,7 +66,8 @@ def check_fits(config: SimConfig, robots: int) -> None:
   if need > MEMORY_FRACTION * have:
     raise ConfigError(f"{robots} robots on a {config.height}x{config.width} grid need about "
                       f"{need / 2**30:.1f} GiB, more than {MEMORY_FRACTION:.0%} of the "
-                      f"{have / 2**30:.1f} GiB available; use fewer robots or a coarser --res")
+                      f"{have / 2**30:.1f} GiB available, mostly for {_largest_part(config)}; "
+                      f"use fewer robots or change that setting")
 
 
 def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = False) -> int:
@@ -71,8 +85,8 @@ def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = F
   if one > budget:
     raise ConfigError(
         f"one robot on a {config.height}x{config.width} grid with max_steps={config.max_steps} "
-        f"needs about {_gib(one)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available; "
-        f"use a coarser --res or fewer --max-steps")
+        f"needs about {_gib(one)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available, "
+        f"mostly for {_largest_part(config)}; change that setting")
   need = estimate_bytes(config, requested)
   if need <= budget:
     return requested
