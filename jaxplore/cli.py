@@ -343,7 +343,13 @@ def main(argv=None) -> int:
     return 0
   if args.command == "plot":
     from jaxplore import plot
-    for path in plot.run_figures(args.run_dir):
+    from jaxplore.config import ConfigError
+    try:
+      paths = plot.run_figures(args.run_dir)
+    except ConfigError as err:
+      print(f"jaxplore: error: {err}", file=sys.stderr)
+      return 2
+    for path in paths:
       print(f"wrote {path}")
     return 0
   return 1
