@@ -129,12 +129,20 @@ def _run(args, extra) -> int:
   if code:
     return code
   t, c = result.timing, result.config
-  print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
-        f"{t['robot_steps_per_s']:.0f} robot-steps/s on {c['sharded_over']} x {c['device_kind']} "
-        f"({c['sim_config']['strategy']})")
+  print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, {_speed(t)} on "
+        f"{c['sharded_over']} x {c['device_kind']} ({c['sim_config']['strategy']})")
   if result.out is not None:
     print(f"results in {result.out}")
   return 0
+
+
+def _speed(timing: dict) -> str:
+  """Robot-steps per second, or seconds per robot-step where that rate would round to 0."""
+  steps, run_s = timing["robot_steps"], timing["run_s"]
+  if not steps or not run_s > 0:
+    return "no robot-steps run"
+  rate = steps / run_s
+  return f"{rate:.0f} robot-steps/s" if rate >= 10 else f"{run_s / steps:.3g} s per robot-step"
 
 
 def _sweep(args, extra) -> int:
