@@ -19,7 +19,7 @@ def _largest_part(config: SimConfig) -> str:
   cells = config.height * config.width
   parts = {
       f"the {config.height}x{config.width} grid at {config.res:g} m/cell (--res)":
-          cells * (4 + 4 + 1 + 4 * 8),
+          cells * (GRID_BYTES_PER_CELL + ROBOT_BYTES_PER_CELL),
       f"the per-step records of max_steps={config.max_steps}": config.max_steps * 10 * 4,
       f"the lidar buffers of {config.n_beams} beams of {config.max_range_cells} cells (r_max)":
           config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6,
@@ -27,19 +27,33 @@ def _largest_part(config: SimConfig) -> str:
   return max(parts, key=parts.get)
 
 
-def estimate_bytes(config: SimConfig, robots: int) -> int:
-  """Rough peak memory of a run: per-robot state and planning masks, records, lidar buffers.
+# The model's constants, fitted to the peak RSS of `jaxplore run` on this project's CPU
+# (experiments/bench_memory.py, nearest frontier, 2000^2 and 4000^2 cells, 1 and 4 robots, less
+# the peak of the same run on 64^2): one robot costs ~150 bytes per cell, each further robot
+# ~13-22, so most of it is per batch, not per robot.
+FIXED_BYTES = 128 << 20  # what a big grid adds whatever its size (the intercept of the fit)
+GRID_BYTES_PER_CELL = 130  # the world (host and device), one robot's planning temporaries, and
+# the tables' per-robot map quality (float64 SSIM filters), one robot at a time
+ROBOT_BYTES_PER_CELL = 20  # a robot's belief, entropy map and blacklist, and their host copies
+LOCKSTEP_PLANNING_BYTES_PER_CELL = 32  # distances, predecessors, masks of one planning round
 
-  The ``per_robot`` strategy plans a few robots at a time (at most 64 robots' planning buffers
-  are counted), ``lockstep`` the whole batch at once.
+
+def estimate_bytes(config: SimConfig, robots: int) -> int:
+  """Peak memory of a run: a per-batch part (the world, planning temporaries, the tables) and,
+  per robot, its maps, per-step records and lidar buffers; ``lockstep`` also plans the whole
+  batch at once (one planning round's buffers per robot).
+
+  Within 25 % of the measured peak RSS (less the runtime's own) on 1000^2 to 4000^2 cells with
+  1 and 4 robots on a CPU (``experiments/results/bench_memory.md``, where the constants were
+  fitted); lockstep's planning term is not measured here.
   """
   cells = config.height * config.width
-  per_robot_state = cells * (4 + 4 + 1)  # log-odds, entropy map, blacklist
-  per_robot_planning = cells * 4 * 8  # distances, predecessors, masks of one planning round
   records = config.max_steps * 10 * 4
   lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
-  planning = robots if config.strategy == "lockstep" else min(robots, 64)
-  return robots * (per_robot_state + records + lidar) + planning * per_robot_planning
+  per_robot = cells * ROBOT_BYTES_PER_CELL + records + lidar
+  if config.strategy == "lockstep":
+    per_robot += cells * LOCKSTEP_PLANNING_BYTES_PER_CELL
+  return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + robots * per_robot
 
 
 def available_bytes() -> int:
