@@ -6,7 +6,8 @@ The baseline is the peak RSS of the same subprocess on a 64 x 64 map (Python, JA
 the compiled programs), subtracted from every measurement: the estimate models the arrays of a
 batch, not the runtime.
 
-    python experiments/bench_memory.py --sizes 1000 2000 4000 --out experiments/results/bench_memory.md
+    python experiments/bench_memory.py --sizes 1000 2000 4000 --robots 1 4 \
+        --out experiments/results/bench_memory.md
 """
 
 from __future__ import annotations
@@ -68,7 +69,8 @@ def main():
   for r in rows:
     net = r["peak"] - base
     ratio = r["estimate"] / net if net > 0 else float("nan")
-    lines.append(f"| {r['n']} x {r['n']} | {r['robots']} | {r['estimate'] / 2**20:.0f} | {r['peak'] / 2**20:.0f} "
+    lines.append(f"| {r['n']} x {r['n']} | {r['robots']} | {r['estimate'] / 2**20:.0f} "
+                 f"| {r['peak'] / 2**20:.0f} "
                  f"| {net / 2**20:.0f} | {ratio:.2f} | {r['wall']:.0f} |")
   text = "\n".join(lines)
   print(text)

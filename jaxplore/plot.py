@@ -138,7 +138,8 @@ def run_figures(run_dir) -> list[Path]:
     curves = pd.read_parquet(run_dir / "curves.parquet")
     maps = np.load(run_dir / "maps.npz")
   except Exception as err:  # a torn file: pyarrow's and NumPy's errors vary
-    raise ConfigError(f"{str(run_dir)!r}: unreadable results ({type(err).__name__}: {err})") from None
+    raise ConfigError(f"{str(run_dir)!r}: unreadable results "
+                      f"({type(err).__name__}: {err})") from None
   written = []
 
   fig, ax = plt.subplots(figsize=(7, 6))

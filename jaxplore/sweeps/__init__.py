@@ -179,7 +179,8 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
     tables, timing = execute.execute(made, group_runs, out, n_dev, progress, process, n_processes)
     execute.barrier("jaxplore-sweep-chunks", n_processes)
 
-    # Assemble from the chunk files (or memory): the same bytes whether or not the sweep was resumed.
+    # Assemble from the chunk files (or memory): the same bytes whether or not the sweep was
+    # resumed.
     episodes, curves = assemble.read_tables(made, out, tables)
     described = assemble.describe(made, group_runs, episodes, n_processes)
     result = SweepResult(episodes, curves, described, timing, out)
@@ -243,6 +244,7 @@ def _existing_schedule(out: Path | None, spec: SweepSpec, quiet: bool):
   return None
 
 
-__all__ = ["LEGACY_FILE", "LOCK_FILE", "MEMORY_FRACTION", "RUN_KEYS", "SCHEDULE_FILE", "SweepResult",
+__all__ = ["LEGACY_FILE", "LOCK_FILE", "MEMORY_FRACTION", "RUN_KEYS", "SCHEDULE_FILE",
+           "SweepResult",
            "fit_chunk", "load_config", "make_spec", "parse_random_spec", "read_schedule", "sweep",
            "sweep_table"]
