@@ -83,7 +83,7 @@ def _reporting_errors(compute):
     print(f"jaxplore: error: {err}", file=sys.stderr)
     return None, 2
   except KeyboardInterrupt as err:
-    print(f"jaxplore: {err}", file=sys.stderr)
+    print(f"jaxplore: {err or 'interrupted'}", file=sys.stderr)
     return None, 130
 
 
@@ -129,12 +129,20 @@ def _run(args, extra) -> int:
   if code:
     return code
   t, c = result.timing, result.config
-  print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, "
-        f"{t['robot_steps_per_s']:.0f} robot-steps/s on {c['sharded_over']} x {c['device_kind']} "
-        f"({c['sim_config']['strategy']})")
+  print(f"compile {t['compile_s']:.1f} s, run {t['run_s']:.1f} s, {_speed(t)} on "
+        f"{c['sharded_over']} x {c['device_kind']} ({c['sim_config']['strategy']})")
   if result.out is not None:
     print(f"results in {result.out}")
   return 0
+
+
+def _speed(timing: dict) -> str:
+  """Robot-steps per second, or seconds per robot-step where that rate would round to 0."""
+  steps, run_s = timing["robot_steps"], timing["run_s"]
+  if not steps or not run_s > 0:
+    return "no robot-steps run"
+  rate = steps / run_s
+  return f"{rate:.0f} robot-steps/s" if rate >= 10 else f"{run_s / steps:.3g} s per robot-step"
 
 
 def _sweep(args, extra) -> int:
@@ -305,10 +313,10 @@ def main(argv=None) -> int:
   args, extra = parser.parse_known_args(argv)
   if extra and args.command not in ("run", "sweep"):
     parser.error(f"unrecognized arguments: {' '.join(extra)}")
-  if args.command == "run":
-    return _run(args, extra)
-  if args.command == "sweep":
-    return _sweep(args, extra)
+  if args.command in ("run", "sweep"):
+    from jaxplore import interrupts
+    with interrupts.deferred():  # Ctrl-C acted on between JAX calls, start-up included
+      return (_run if args.command == "run" else _sweep)(args, extra)
   if args.command == "maps":
     from jaxplore.maps import MapError, load_world, render_png, world_table
     if args.render:
@@ -343,7 +351,13 @@ def main(argv=None) -> int:
     return 0
   if args.command == "plot":
     from jaxplore import plot
-    for path in plot.run_figures(args.run_dir):
+    from jaxplore.config import ConfigError
+    try:
+      paths = plot.run_figures(args.run_dir)
+    except ConfigError as err:
+      print(f"jaxplore: error: {err}", file=sys.stderr)
+      return 2
+    for path in paths:
       print(f"wrote {path}")
     return 0
   return 1

@@ -387,6 +387,28 @@ def effective_radius(res: float, fov: float, n_beams: int, dpi_min: float | None
   return spacing / math.tan(step)
 
 
+# A length that sizes buffers (lidar range, robot radius, R_e, R_u, loop radius) may reach
+# this far, or across the map's diagonal if that is longer: beyond the diagonal it reaches no
+# more cells, only sizes buffers for cells that do not exist.
+LENGTH_LIMIT_M = 100.0
+
+
+def check_length(name: str, value, limit: float, sizes: str, length: str | None = None) -> None:
+  """Raises :class:`ConfigError` naming parameter ``name`` when the ``length`` it gives (m; a
+  scalar or one per robot; default: the parameter itself), which sizes ``sizes``, is NaN,
+  infinite, negative or beyond ``limit`` metres."""
+  arr = np.asarray(value, np.float64)
+  if not np.all(np.isfinite(arr)):
+    raise ConfigError(f"parameter {name} is NaN or infinite: {arr.ravel()[:5]}")
+  if np.any(arr < 0):
+    raise ConfigError(f"parameter {name} must be >= 0, got {arr[arr < 0].ravel()[:5]}")
+  if np.any(arr > limit):
+    raise ConfigError(f"parameter {name}: {length or name} = {float(arr.max()):.4g} m sizes "
+                      f"{sizes}, and "
+                      f"may be at most the map's diagonal or {LENGTH_LIMIT_M:g} m, whichever is "
+                      f"longer ({limit:.4g} m here): beyond the map it reaches no more cells")
+
+
 def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
                **overrides) -> SimConfig:
   """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``.
@@ -396,13 +418,24 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
   of ``params``); without a preset it is ``SimConfig.r_e``'s default unless given.
   """
   dpi_min = overrides.pop("dpi_min", None)
+  limit = max(math.hypot(*world_shape) * res, LENGTH_LIMIT_M)
+  # Lengths that size buffers are checked before anything is sized from them.
+  check_length("r_max", params.r_max, limit, "the lidar's buffers")
+  check_length("r_robot", params.r_robot, limit, "the robot's inflation kernels")
+  check_length("loop_radius", params.loop_radius, limit, "the loop-closure line-of-sight samples")
+  check_length("alpha", params.alpha, math.inf, "")
   if preset is not None and "r_e" not in overrides:
     n_beams = int(overrides.get("n_beams", PRESETS[preset].n_beams))
     overrides["r_e"] = effective_radius(float(res), float(np.max(np.asarray(params.fov))), n_beams,
                                         dpi_min)
+    check_length("r_e", overrides["r_e"], limit, "the gain kernels",
+                 "R_e derived from fov, the beam count and dpi_min by Eq 5-6,")
+  elif "r_e" in overrides:
+    check_length("r_e", overrides["r_e"], limit, "the gain kernels (R_e)")
   r_max = float(np.max(np.asarray(params.r_max)))
   r_robot = float(np.max(np.asarray(params.r_robot)))
   r_u = float(np.max(np.asarray(params.alpha))) * float(overrides.get("r_e", SimConfig.r_e))
+  check_length("alpha", r_u, limit, "the entropy-map update", "R_u = alpha * r_e")
   kwargs = dict(
       height=int(world_shape[0]), width=int(world_shape[1]), res=float(res),
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),

@@ -19,7 +19,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from jaxplore import sim
+from jaxplore import interrupts, sim
 from jaxplore.config import SimConfig
 
 # The event JAX's monitoring reports once per XLA backend compile, with its duration.
@@ -98,7 +98,8 @@ def drive(compiled, world, params, state, max_steps: int, *, interruptible: bool
   Args:
     compiled: the chunk function (:func:`compile_advance`).
     interruptible: on Ctrl-C, return what the finished chunks gave (``interrupted=True``)
-      instead of raising.
+      instead of raising. Within :func:`jaxplore.interrupts.deferred`, Ctrl-C stops the loop
+      once the chunk in flight has finished (it is kept).
     on_chunk: called after every finished chunk with its records (NumPy) and the done flags.
   """
   records, steps, interrupted = [], 0, False
@@ -116,6 +117,8 @@ def drive(compiled, world, params, state, max_steps: int, *, interruptible: bool
         on_chunk(rec, done)
       if done.all():
         break
+      if interrupts.requested():
+        raise KeyboardInterrupt
   except KeyboardInterrupt:
     if not interruptible:
       raise

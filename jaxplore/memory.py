@@ -14,19 +14,46 @@ from jaxplore.config import ConfigError, SimConfig
 MEMORY_FRACTION = 0.8  # of the available memory a batch may use
 
 
-def estimate_bytes(config: SimConfig, robots: int) -> int:
-  """Rough peak memory of a run: per-robot state and planning masks, records, lidar buffers.
+def _largest_part(config: SimConfig) -> str:
+  """What makes one robot's estimate large, naming the setting behind it."""
+  cells = config.height * config.width
+  parts = {
+      f"the {config.height}x{config.width} grid at {config.res:g} m/cell (--res)":
+          cells * (GRID_BYTES_PER_CELL + ROBOT_BYTES_PER_CELL),
+      f"the per-step records of max_steps={config.max_steps}": config.max_steps * 10 * 4,
+      f"the lidar buffers of {config.n_beams} beams of {config.max_range_cells} cells (r_max)":
+          config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6,
+  }
+  return max(parts, key=parts.get)
 
-  The ``per_robot`` strategy plans a few robots at a time (at most 64 robots' planning buffers
-  are counted), ``lockstep`` the whole batch at once.
+
+# The model's constants, fitted to the peak RSS of `jaxplore run` on this project's CPU
+# (experiments/bench_memory.py, nearest frontier, 2000^2 and 4000^2 cells, 1 and 4 robots, less
+# the peak of the same run on 64^2): one robot costs ~150 bytes per cell, each further robot
+# ~13-22, so most of it is per batch, not per robot.
+FIXED_BYTES = 128 << 20  # what a big grid adds whatever its size (the intercept of the fit)
+GRID_BYTES_PER_CELL = 130  # the world (host and device), one robot's planning temporaries, and
+# the tables' per-robot map quality (float64 SSIM filters), one robot at a time
+ROBOT_BYTES_PER_CELL = 20  # a robot's belief, entropy map and blacklist, and their host copies
+LOCKSTEP_PLANNING_BYTES_PER_CELL = 32  # distances, predecessors, masks of one planning round
+
+
+def estimate_bytes(config: SimConfig, robots: int) -> int:
+  """Peak memory of a run: a per-batch part (the world, planning temporaries, the tables) and,
+  per robot, its maps, per-step records and lidar buffers; ``lockstep`` also plans the whole
+  batch at once (one planning round's buffers per robot).
+
+  Within 25 % of the measured peak RSS (less the runtime's own) on 1000^2 to 4000^2 cells with
+  1 and 4 robots on a CPU (``experiments/results/bench_memory.md``, where the constants were
+  fitted); lockstep's planning term is not measured here.
   """
   cells = config.height * config.width
-  per_robot_state = cells * (4 + 4 + 1)  # log-odds, entropy map, blacklist
-  per_robot_planning = cells * 4 * 8  # distances, predecessors, masks of one planning round
   records = config.max_steps * 10 * 4
   lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
-  planning = robots if config.strategy == "lockstep" else min(robots, 64)
-  return robots * (per_robot_state + records + lidar) + planning * per_robot_planning
+  per_robot = cells * ROBOT_BYTES_PER_CELL + records + lidar
+  if config.strategy == "lockstep":
+    per_robot += cells * LOCKSTEP_PLANNING_BYTES_PER_CELL
+  return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + robots * per_robot
 
 
 def available_bytes() -> int:
@@ -53,7 +80,8 @@ def check_fits(config: SimConfig, robots: int) -> None:
   if need > MEMORY_FRACTION * have:
     raise ConfigError(f"{robots} robots on a {config.height}x{config.width} grid need about "
                       f"{need / 2**30:.1f} GiB, more than {MEMORY_FRACTION:.0%} of the "
-                      f"{have / 2**30:.1f} GiB available; use fewer robots or a coarser --res")
+                      f"{have / 2**30:.1f} GiB available, mostly for {_largest_part(config)}; "
+                      f"use fewer robots or change that setting")
 
 
 def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = False) -> int:
@@ -71,8 +99,8 @@ def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = F
   if one > budget:
     raise ConfigError(
         f"one robot on a {config.height}x{config.width} grid with max_steps={config.max_steps} "
-        f"needs about {_gib(one)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available; "
-        f"use a coarser --res or fewer --max-steps")
+        f"needs about {_gib(one)}, more than {MEMORY_FRACTION:.0%} of the {_gib(have)} available, "
+        f"mostly for {_largest_part(config)}; change that setting")
   need = estimate_bytes(config, requested)
   if need <= budget:
     return requested

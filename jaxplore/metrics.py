@@ -81,7 +81,9 @@ def map_quality(logodds, truth_occupied) -> dict:
   from skimage.metrics import structural_similarity
   p = 1.0 / (1.0 + np.exp(-np.asarray(logodds, np.float64)))
   truth = np.asarray(truth_occupied, np.float64)
-  return {"ssim": float(structural_similarity(p, truth, data_range=1.0)),
+  side = min(p.shape)  # scikit-image's 7-cell window, narrowed (odd) on maps under 7 cells
+  window = min(7, side if side % 2 else side - 1)
+  return {"ssim": float(structural_similarity(p, truth, data_range=1.0, win_size=window)),
           "rmse": float(np.sqrt(np.mean((p - truth) ** 2)))}
 
 

@@ -17,6 +17,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from jaxplore.errors import ConfigError  # noqa: E402
+
 
 def _extent(shape, res, origin):
   h, w = shape
@@ -124,8 +126,20 @@ def saved_exploration_graph(run_dir, res: float, origin, robot: int = 0):
 def run_figures(run_dir) -> list[Path]:
   """Writes ``map.png``, ``entropy_distance.png`` and ``coverage_time.png`` into ``run_dir``."""
   run_dir = Path(run_dir)
-  curves = pd.read_parquet(run_dir / "curves.parquet")
-  maps = np.load(run_dir / "maps.npz")
+  if not run_dir.is_dir():
+    raise ConfigError(f"{str(run_dir)!r} is not a folder (give a jaxplore run or sweep --out)")
+  missing = [n for n in ("curves.parquet", "maps.npz") if not (run_dir / n).is_file()]
+  if missing:
+    unfinished = " (an unfinished sweep: jaxplore sweep --resume it)" if any(
+        run_dir.glob("sweep_*.json")) else ""
+    raise ConfigError(f"{str(run_dir)!r} holds no finished jaxplore results: "
+                      f"{' and '.join(missing)} missing{unfinished}")
+  try:
+    curves = pd.read_parquet(run_dir / "curves.parquet")
+    maps = np.load(run_dir / "maps.npz")
+  except Exception as err:  # a torn file: pyarrow's and NumPy's errors vary
+    raise ConfigError(f"{str(run_dir)!r}: unreadable results "
+                      f"({type(err).__name__}: {err})") from None
   written = []
 
   fig, ax = plt.subplots(figsize=(7, 6))

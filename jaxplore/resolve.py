@@ -215,6 +215,11 @@ def resolve(spec: RunSpec) -> Resolved:
   for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)
+  cells = grid.shape[0] * grid.shape[1]
+  if spec.path_capacity is not None and spec.path_capacity > cells:
+    raise ConfigError(f"path_capacity {spec.path_capacity} is more waypoints than the "
+                      f"{grid.shape[1]}x{grid.shape[0]} grid has cells ({cells}): a shortest "
+                      f"path visits each cell at most once")
   max_steps = spec.max_steps if spec.max_steps is not None else default_max_steps(grid, params)
   if spec.pose_graph or (spec.pose_graph is None and planner.needs_pose_graph):
     # Room for every keyframe the run can create (posegraph.keyframe_bound).

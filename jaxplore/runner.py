@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import pandas as pd
 
-from jaxplore import __version__, driver, memory, results, sim
+from jaxplore import __version__, driver, interrupts, memory, results, sim
 from jaxplore.maps import GridMap
 from jaxplore.resolve import build_params, default_max_steps, resolve
 from jaxplore.runspec import RunSpec
@@ -46,6 +46,7 @@ class RunResult:
   out: Path | None = None
 
 
+@interrupts.deferred()
 def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices: int | None = None,
         quiet: bool = False, **settings) -> RunResult:
   """Runs a batch of robots exploring a world and returns (and writes) the results.
@@ -76,6 +77,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   config, world, grid = resolved.config, resolved.world, resolved.grid
   robots = spec.robots
   memory.check_fits(config, robots)
+  nothing = "interrupted before the first step; nothing was computed or written"
+  interrupts.check(nothing)
   n_dev = driver.shard_count(robots, driver.local_devices(devices))
   batch = resolved.batch()
   chunk_epochs = spec.chunk_epochs or driver.default_chunk_epochs(config)
@@ -83,9 +86,11 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   t0 = time.perf_counter()
   state = driver.reset(config, world, batch)
   t_reset = time.perf_counter() - t0
+  interrupts.check(nothing)
   t0 = time.perf_counter()
   compiled = driver.compile_advance(config, chunk_epochs, n_dev, world, batch.params, state)
   t_compile = time.perf_counter() - t0
+  interrupts.check(nothing)
 
   bar = None
   if progress:

@@ -68,9 +68,11 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
                         f"y in [{grid.origin[1]}, {grid.origin[1] + h * grid.res}])")
     if grid.occupied[i, j]:
       raise ConfigError(f"start {tuple(start_xy)} m is inside a wall of map {grid.name!r} (cell {i}, {j})")
-    if clearance[i, j] <= radius:
-      raise ConfigError(f"start {tuple(start_xy)} m is {clearance[i, j] * grid.res:.2f} m from a wall, "
-                        f"closer than the robot radius {r_robot} m")
+    nearest = start_clearance(grid, start_xy, r_robot)
+    if nearest < r_robot:
+      raise ConfigError(f"start {tuple(start_xy)} m is {nearest:.3f} m from the centre of an "
+                        f"occupied cell (outside the map counts as occupied), closer than the "
+                        f"robot radius {r_robot:g} m: its disc would touch it")
     reachable = labels == labels[i, j]
   else:
     sizes = ndimage.sum_labels(free, labels, index=np.arange(1, count + 1))
@@ -89,6 +91,23 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
                truth_framed=sensor.frame_truth(jnp.asarray(grid.occupied)), reachable=jnp.asarray(reachable),
                start_ok=jnp.asarray(start_ok), n_reachable=jnp.float32(reachable.sum()),
                origin=jnp.asarray(grid.origin, jnp.float32))
+
+
+def start_clearance(grid: GridMap, xy, r_robot: float) -> float:
+  """Metres from the point ``xy`` to the nearest occupied cell centre within ``r_robot`` (and a
+  cell), outside the map counting as occupied: the test the motion model's disc collision makes
+  (:func:`jaxplore.robot.touched_cells`), the same on every edge and wall. ``inf`` when none is
+  that close."""
+  i, j = grid.world_to_cell(xy[0], xy[1])
+  k = int(np.ceil(r_robot / grid.res)) + 1
+  rows, cols = np.meshgrid(np.arange(i - k, i + k + 1), np.arange(j - k, j + k + 1), indexing="ij")
+  h, w = grid.shape
+  inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+  occupied = np.ones(rows.shape, bool)
+  occupied[inside] = grid.occupied[rows[inside], cols[inside]]
+  x, y = grid.cell_to_world(rows, cols)
+  distance = np.hypot(x - xy[0], y - xy[1])
+  return float(distance[occupied].min()) if occupied.any() else float("inf")
 
 
 def to_cells(xy, origin, res):

@@ -65,3 +65,31 @@ def test_sim_config_resolves_auto_on_construction_and_refuses_unknown_strategies
   assert dataclasses.replace(config, strategy="lockstep").strategy == "lockstep"
   with pytest.raises(ConfigError, match="strategy must be one of"):
     SimConfig(height=8, width=8, res=0.1, strategy="gpu")
+
+
+@pytest.mark.parametrize("overrides, static, match", [
+    ({"r_max": 1e6}, {}, "r_max: r_max = 1e[+]06 m sizes the lidar"),
+    ({"r_robot": 1e3}, {}, "r_robot: r_robot = 1000 m"),
+    ({"loop_radius": 1e9}, {}, "loop_radius"),
+    ({"alpha": 1e9}, {}, "alpha: R_u = alpha [*] r_e"),
+    ({"r_max": float("nan")}, {}, "r_max is NaN or infinite"),
+    ({"r_robot": float("inf")}, {}, "r_robot is NaN or infinite"),
+    ({"alpha": float("nan")}, {}, "alpha is NaN or infinite"),
+    ({}, {"r_e": float("nan")}, "r_e is NaN or infinite"),
+    ({}, {"r_e": 1e6}, "r_e: r_e = 1e[+]06 m"),
+    ({}, {"dpi_min": 1e-30}, "r_e: R_e derived from fov"),
+    ({"fov": 1e-30}, {}, "r_e: R_e derived from fov"),
+])
+def test_lengths_that_size_buffers_are_refused_by_name_before_any_size(overrides, static, match):
+  params = make_params("li2020", res=0.1, **overrides)
+  with pytest.raises(ConfigError, match=match):
+    config_for((130, 170), 0.1, params, preset="li2020", **static)
+
+
+def test_length_limit_is_the_maps_diagonal_or_100_m():
+  # a preset's 15 m lidar on a map smaller than its range is fine; on a 1 km map so is 1 km
+  assert config_for((3, 3), 0.1, make_params("li2020", res=0.1)).max_range_cells == 150
+  big = config_for((1000, 1000), 1.0, make_params("li2020", res=1.0, r_max=1000.0))
+  assert big.max_range_cells == 1000
+  with pytest.raises(ConfigError, match="at most the map's diagonal or 100 m"):
+    config_for((3, 3), 0.1, make_params("li2020", res=0.1, r_max=100.5))

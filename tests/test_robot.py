@@ -1,5 +1,7 @@
 """One robot's motion step: its disc never touches the truth, and what it bumps into it learns."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,6 +10,7 @@ import pytest
 from conftest import EAGER_AND_JIT, box_world
 from jaxplore import mapping, robot, sim
 from jaxplore.config import ConfigError, config_for, make_params
+from jaxplore.maps import GridMap
 
 R_ROBOT = 0.25
 
@@ -76,9 +79,40 @@ def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
 def test_starts_count_the_map_edge_as_a_wall():
   grid = box_world(20, 30, res=0.1)
   edgeless = grid.__class__(np.zeros((20, 30), bool), 0.1, (0.0, 0.0), "open")
-  with pytest.raises(ConfigError, match="from a wall"):
+  with pytest.raises(ConfigError, match="closer than the robot radius"):
     sim.make_world(edgeless, 0.2, (0.05, 1.0))
   tiny = grid.__class__(np.zeros((3, 3), bool), 0.1, (0.0, 0.0), "tiny")
   with pytest.raises(ConfigError, match="clearance"):
     sim.make_world(tiny, 0.4)
   sim.make_world(edgeless, 0.2, (1.5, 1.0))  # far from every edge: fine
+
+
+def _start_verdict(grid, r_robot, xy):
+  try:
+    sim.make_world(grid, r_robot, xy)
+    return True
+  except ConfigError:
+    return False
+
+
+def test_a_start_is_judged_alike_at_every_edge_and_wall_as_the_disc_collision_would():
+  """Outside the map counts as occupied the same way on every edge: a start ``d`` from the
+  left, right, bottom or top edge, or from an interior wall, gets one verdict, and it is the
+  motion model's (no occupied cell centre closer than ``r_robot``, :func:`touched_cells`)."""
+  h, w, res, r = 20, 30, 0.1, 0.12
+  edgeless = GridMap(np.zeros((h, w), bool), res, (0.0, 0.0), "open")
+  walled = np.zeros((h, w), bool)
+  walled[:, 15:] = True  # an interior wall whose face is at x = 1.5 m
+  walled = GridMap(walled, res, (0.0, 0.0), "walled")
+  verdicts = []
+  for d in np.arange(0.02, 0.4, 0.01):
+    at = [_start_verdict(edgeless, r, xy) for xy in
+          ((d, 1.0), (w * res - d, 1.0), (1.5, d), (1.5, h * res - d))]
+    at.append(_start_verdict(walled, r, (1.5 - d, 1.0)))
+    assert len(set(at)) == 1, (d, at)
+    # the oracle: each start lies on a cell boundary across the edge, so the nearest occupied
+    # centres are half a cell to either side, d + res / 2 beyond it
+    nearest = math.hypot(d + res / 2, res / 2)
+    verdicts.append(at[0])
+    assert at[0] == (nearest >= r), (d, at[0], nearest)
+  assert not all(verdicts) and any(verdicts)

@@ -138,3 +138,17 @@ def test_merge_gives_explicit_values_precedence_and_merges_tables():
   merged = merge_settings({"res": 0.2, "params": {"alpha": 1.0, "r_max": 3.0}, "out": "a"},
                           {"res": None, "params": {"alpha": 2.0}, "out": "b"})
   assert merged == {"res": 0.2, "params": {"alpha": 2.0, "r_max": 3.0}, "out": "b"}
+
+
+def test_shape_settings_are_refused_naming_them_before_compute(capsys):
+  from jaxplore import cli
+  base = ["run", "--world", "open", "--res", "0.5", "--robots", "1", "--no-progress"]
+  for flags, match in ((["--set", "r_max=1e6"], "parameter r_max"),
+                       (["--path-capacity", "1000000000"], "path_capacity 1000000000 is more "
+                        "waypoints than the 40x40 grid has cells"),
+                       (["--max-steps", "100000000000"], "mostly for the per-step records of "
+                        "max_steps=100000000000"),
+                       (["--start", "abc"], "start must be"), (["--alpha", "nan"], "alpha")):
+    assert cli.main(base + flags) == 2, flags
+    err = capsys.readouterr().err
+    assert err.startswith("jaxplore: error: ") and match in err, err

@@ -379,3 +379,46 @@ def test_r_e_fixes_a_shape_so_each_value_is_its_own_group():
   mixed = dataclasses.replace(groups[0], rows=groups[0].rows + groups[1].rows)
   with pytest.raises(ConfigError, match="r_e"):
     schedule.resolve_group(spec, mixed, None, {})
+
+
+def test_resume_recomputes_a_zero_byte_or_missing_chunk_file(reference, tmp_path, capsys):
+  _, ref_out, _ = reference
+  out = tmp_path / "damaged"
+  shutil.copytree(ref_out, out)
+  (out / "episodes.parquet").unlink()
+  (out / "chunks" / "chunk_00001.parquet").write_bytes(b"")  # a full disk, a torn copy
+  (out / "chunks" / "chunk_00002.curves.parquet").unlink()
+  resumed = jaxplore.sweep(resume=out, progress=False, quiet=True, devices=1)
+  assert resumed.timing["chunks_run"] == 2 and resumed.timing["chunks_skipped"] == 1
+  err = capsys.readouterr().err
+  assert "chunk 1 of" in err and "chunk 2 of" in err and "computing it again" in err
+  for mine, theirs in zip(_tables(out), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs)
+
+
+def test_a_second_sweep_into_a_busy_folder_is_refused_before_touching_it(reference, tmp_path):
+  import fcntl
+  _, ref_out, _ = reference
+  out = tmp_path / "busy"
+  shutil.copytree(ref_out, out)
+  stray = out / "chunks" / "chunk_00002.parquet.tmp"
+  stray.write_bytes(b"the other sweep's chunk, being written")
+  with open(out / sweeps.LOCK_FILE, "a") as other:  # as the sweep running in there holds it
+    fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    with pytest.raises(ConfigError, match="in use by another jaxplore sweep"):
+      jaxplore.sweep(resume=out, progress=False, quiet=True, devices=1)
+    with pytest.raises(ConfigError, match="in use by another jaxplore sweep"):
+      jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  assert stray.exists()  # its temporaries were left alone
+  # once it is released, the same sweep takes the folder (finished: nothing to compute)
+  again = jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  assert again.timing["chunks_run"] == 0
+
+
+def test_plot_on_a_missing_or_empty_folder_is_one_clear_line(tmp_path, capsys):
+  (tmp_path / "empty").mkdir()
+  for folder, match in ((tmp_path / "missing", "is not a folder"),
+                        (tmp_path / "empty", "holds no finished jaxplore results")):
+    assert cli.main(["plot", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxplore: error: ") and match in err and "Traceback" not in err

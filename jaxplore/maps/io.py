@@ -197,10 +197,13 @@ def resample(grid: GridMap, res: float) -> GridMap:
                    f"leaves {coarse_width}x{coarse_height}, under the 3x3 minimum")
   rows = np.floor(np.arange(height) * ratio + _EPS).astype(np.int64)
   cols = np.floor(np.arange(width) * ratio + _EPS).astype(np.int64)
-  occupied_rows, occupied_cols = np.nonzero(grid.occupied)
-  flat = rows[occupied_rows] * coarse_width + cols[occupied_cols]
-  coarse = np.bincount(flat, minlength=coarse_height * coarse_width) > 0
-  coarse = coarse.reshape(coarse_height, coarse_width)
+  # OR over each coarse cell's fine rows, then columns (rows and cols never decrease, so each
+  # coarse index is one run): no array larger than coarse_height x width.
+  coarse = np.zeros((coarse_height, coarse_width), bool)
+  hit_rows, row_starts = np.unique(rows, return_index=True)
+  hit_cols, col_starts = np.unique(cols, return_index=True)
+  by_rows = np.logical_or.reduceat(grid.occupied, row_starts, axis=0)
+  coarse[np.ix_(hit_rows, hit_cols)] = np.logical_or.reduceat(by_rows, col_starts, axis=1)
   if coarse_height > height * ratio + _EPS:
     coarse[-1, :] = True
   if coarse_width > width * ratio + _EPS:
@@ -216,8 +219,19 @@ def _read_channel_sum(image_path: Path, where: str) -> tuple[np.ndarray, int]:
   """
   if not image_path.is_file():
     raise MapError(f"{where}: image file {str(image_path)!r} not found")
+  # Pillow refuses images above ~179 Mpx as decompression bombs; a map's size is checked here
+  # instead, against the memory its decoding takes (a 20000 x 20000 map is 400 Mpx).
+  bomb_limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
   try:
     with Image.open(image_path) as image:
+      width, height = image.size
+      need = width * height * (len(image.getbands()) + DECODE_BYTES_PER_PIXEL)
+      have = _available_bytes()
+      if need > 0.8 * have:
+        raise MapError(f"{where}: image {str(image_path)!r} is {width} x {height} pixels "
+                       f"({width * height / 1e6:.0f} Mpx); reading it takes about "
+                       f"{need / 2**30:.1f} GiB, more than 80% of the {have / 2**30:.1f} GiB "
+                       f"available: downsample the image first (and its YAML's resolution)")
       image.load()
       if image.mode == "P":
         image = image.convert("RGBA")
@@ -230,9 +244,25 @@ def _read_channel_sum(image_path: Path, where: str) -> tuple[np.ndarray, int]:
         red, green, blue = (np.asarray(band, dtype=np.uint16) for band in image.split()[:3])
         return red + green + blue, 3
   except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
+    if isinstance(e, MapError):
+      raise
     raise MapError(f"{where}: image {str(image_path)!r} is unreadable ({e})") from e
+  finally:
+    Image.MAX_IMAGE_PIXELS = bomb_limit
   raise MapError(f"{where}: image {str(image_path)!r} has unsupported pixel mode {mode!r} "
                  "(8-bit grey, palette, RGB or RGBA only)")
+
+
+# Bytes per pixel that reading a map holds besides the decoded bands: the uint16 channel sum,
+# the free mask and its flipped copy.
+DECODE_BYTES_PER_PIXEL = 4
+
+
+def _available_bytes() -> int:
+  try:
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+  except (ValueError, OSError, AttributeError):
+    return 8 << 30
 
 
 def _is_number(value) -> bool:

@@ -144,8 +144,37 @@ def get_world(name: str, res: float | None = None) -> GridMap:
     raise MapError(f"unknown world {name!r}; built-in worlds: {', '.join(WORLDS)}")
   if res is not None and abs(float(res) - spec.res) <= _RES_TOL * spec.res:
     res = None
+  if res is not None and res < spec.res:
+    _check_finer(spec, float(res))
   grid = _cached_world(name, None if res is None else float(res))
   return GridMap(grid.occupied.copy(), grid.res, grid.origin, grid.name)
+
+
+# A grid's cells are indexed with int32 on the device.
+MAX_CELLS = 2**31 - 1
+# Drawing a world with this many times its native cells or more is announced before it is drawn.
+FINE_FACTOR = 16
+
+
+def _check_finer(spec: WorldSpec, res: float) -> None:
+  """Refuses (MapError) a resolution whose grid could not be indexed, and warns on stderr, with
+  the cells and the resolution, before drawing a world at ``FINE_FACTOR`` times its native cells
+  or more (every step and planning round grows with the cells)."""
+  import math
+  import sys
+  native = _cached_world(spec.name, None)
+  h, w = native.shape
+  fine_h, fine_w = (math.ceil(n * spec.res / res - 1e-9) for n in (h, w))
+  cells = fine_h * fine_w
+  if cells > MAX_CELLS:
+    raise MapError(f"world {spec.name!r} at {res:g} m/cell would be {fine_w} x {fine_h} = "
+                   f"{cells:.3g} cells, more than the {MAX_CELLS:.3g} a grid may hold; use a "
+                   f"coarser --res (native {spec.res:g} m/cell)")
+  if cells >= FINE_FACTOR * h * w:
+    print(f"jaxplore: warning: world {spec.name!r} at {res:g} m/cell is {fine_w} x {fine_h} = "
+          f"{cells:,} cells, {cells / (h * w):.0f}x its {w} x {h} cells at its native "
+          f"{spec.res:g} m/cell: every step and planning round costs about that much more",
+          file=sys.stderr)
 
 
 @functools.lru_cache(maxsize=32)

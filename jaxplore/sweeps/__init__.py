@@ -26,13 +26,14 @@ Modules: :mod:`~jaxplore.sweeps.settings` (what is asked, TOML files),
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 from pathlib import Path
 
 import pandas as pd
 
-from jaxplore import driver, results
+from jaxplore import driver, interrupts, results
 from jaxplore.config import ConfigError
 from jaxplore.memory import MEMORY_FRACTION, fit_chunk
 from jaxplore.runspec import SHARED, RunSpec, merge_settings
@@ -65,6 +66,7 @@ class SweepResult:
   out: Path | None = None
 
 
+@interrupts.deferred()
 def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False, *, random=None,
           samples=None, random_seed=None, worlds=None, planners=None, chunk_size=None, resume=None,
           config=None, progress=True, devices=None, distributed=False, **run_kwargs) -> SweepResult:
@@ -136,53 +138,86 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
   process, n_processes = execute.distributed() if distributed else (0, 1)
   if n_processes > 1 and out is None:
     raise ConfigError("a multi-process sweep needs --out on a filesystem every process can write")
-  n_dev = driver.local_devices(explicit["devices"])
-  grids: dict = {}
+  with contextlib.ExitStack() as held:
+    n_dev = driver.local_devices(explicit["devices"])
+    grids: dict = {}
 
-  # Process 0 checks the folder and writes the schedule; the others (several hosts) read it
-  # after a barrier, so that every process runs the same chunks even if their memory differs.
-  made, resolved = None, None
-  if resume is not None:
-    made = read_schedule(out)
-    # The first collective sets up the processes' communication, which waits only ~30 s for
-    # all of them: hold it now, while they are in step, not after chunks of unequal length.
-    execute.barrier("jaxplore-sweep-resume", n_processes)
-  else:
-    base = RunSpec.create(**{k: explicit.get(k) for k in RUN_KEYS})
-    spec = make_spec(explicit["grid"], explicit["random"], explicit["samples"],
-                     explicit["random_seed"], explicit["seeds"], explicit["world"],
-                     explicit["planner"], base, grids)
-    if process == 0:
-      made = _existing_schedule(out, spec, quiet)
-      if made is None:
-        made, resolved = schedules.make_schedule(spec, out, grids, explicit["chunk_size"], n_dev)
-        if out is not None:
-          out.mkdir(parents=True, exist_ok=True)
-          for path, gridmap in grids.items():
-            results.write_world(out / path, gridmap)
-          results.write_json(out / SCHEDULE_FILE, made.to_json())
-    execute.barrier("jaxplore-sweep-schedule", n_processes)
-    if process != 0:
+    # Process 0 checks the folder and writes the schedule; the others (several hosts) read it
+    # after a barrier, so that every process runs the same chunks even if their memory differs.
+    made, resolved = None, None
+    if resume is not None:
+      if out.is_dir():
+        held.enter_context(_folder_lock(out, process))
       made = read_schedule(out)
-      if made.spec.to_json() != spec.to_json():
-        raise ConfigError(f"process {process} was given another sweep than process 0 "
-                          f"({first_difference(made.spec.to_json(), spec.to_json())})")
-  if resolved is None:
-    resolved = schedules.resolve_schedule(made, out, grids, n_dev)
-  group_runs = [execute.GroupRun(g, r) for g, r in zip(made.groups, resolved)]
-  tables, timing = execute.execute(made, group_runs, out, n_dev, progress, process, n_processes)
-  execute.barrier("jaxplore-sweep-chunks", n_processes)
+      # The first collective sets up the processes' communication, which waits only ~30 s for
+      # all of them: hold it now, while they are in step, not after chunks of unequal length.
+      execute.barrier("jaxplore-sweep-resume", n_processes)
+    else:
+      base = RunSpec.create(**{k: explicit.get(k) for k in RUN_KEYS})
+      spec = make_spec(explicit["grid"], explicit["random"], explicit["samples"],
+                       explicit["random_seed"], explicit["seeds"], explicit["world"],
+                       explicit["planner"], base, grids)
+      held.enter_context(_folder_lock(out, process))  # one sweep at a time in a folder
+      if process == 0:
+        made = _existing_schedule(out, spec, quiet)
+        if made is None:
+          made, resolved = schedules.make_schedule(spec, out, grids, explicit["chunk_size"], n_dev)
+          if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+            for path, gridmap in grids.items():
+              results.write_world(out / path, gridmap)
+            results.write_json(out / SCHEDULE_FILE, made.to_json())
+      execute.barrier("jaxplore-sweep-schedule", n_processes)
+      if process != 0:
+        made = read_schedule(out)
+        if made.spec.to_json() != spec.to_json():
+          raise ConfigError(f"process {process} was given another sweep than process 0 "
+                            f"({first_difference(made.spec.to_json(), spec.to_json())})")
+    if resolved is None:
+      resolved = schedules.resolve_schedule(made, out, grids, n_dev)
+    group_runs = [execute.GroupRun(g, r) for g, r in zip(made.groups, resolved)]
+    tables, timing = execute.execute(made, group_runs, out, n_dev, progress, process, n_processes)
+    execute.barrier("jaxplore-sweep-chunks", n_processes)
 
-  # Assemble from the chunk files (or memory): the same bytes whether or not the sweep was resumed.
-  episodes, curves = assemble.read_tables(made, out, tables)
-  described = assemble.describe(made, group_runs, episodes, n_processes)
-  result = SweepResult(episodes, curves, described, timing, out)
-  if out is not None and process == 0:
-    assemble.write_final(out, made, described, timing, episodes, curves)
-  if not quiet and len(episodes):
-    print(results.summary_table(episodes))
-    print(sweep_table(episodes, assemble.figure_names(episodes, made.names)))
-  return result
+    # Assemble from the chunk files (or memory): the same bytes whether or not the sweep was
+    # resumed.
+    episodes, curves = assemble.read_tables(made, out, tables)
+    described = assemble.describe(made, group_runs, episodes, n_processes)
+    result = SweepResult(episodes, curves, described, timing, out)
+    if out is not None and process == 0:
+      assemble.write_final(out, made, described, timing, episodes, curves)
+    if not quiet and len(episodes):
+      print(results.summary_table(episodes))
+      print(sweep_table(episodes, assemble.figure_names(episodes, made.names)))
+    return result
+
+
+LOCK_FILE = ".jaxplore-sweep.lock"
+
+
+@contextlib.contextmanager
+def _folder_lock(out: Path | None, process: int):
+  """Holds an exclusive ``fcntl.flock`` on ``out``'s lock file (process ``process`` of a sweep)
+  for the block; refuses, before touching anything, a folder another sweep holds (two sweeps
+  would delete each other's temporaries and write each other's chunks)."""
+  if out is None:
+    yield
+    return
+  if out.exists() and not out.is_dir():
+    raise ConfigError(f"--out {str(out)!r} is a file, not a folder; choose another --out")
+  import fcntl
+  out.mkdir(parents=True, exist_ok=True)
+  path = out / (LOCK_FILE if process == 0 else f"{LOCK_FILE}.{process}")
+  with open(path, "a") as handle:
+    try:
+      fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+      raise ConfigError(f"{out} is in use by another jaxplore sweep running now (it holds "
+                        f"{path.name}); wait for it to finish, or choose another --out") from None
+    try:
+      yield
+    finally:
+      fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def _existing_schedule(out: Path | None, spec: SweepSpec, quiet: bool):
@@ -202,12 +237,14 @@ def _existing_schedule(out: Path | None, spec: SweepSpec, quiet: bool):
     if not quiet:
       print(f"jaxplore: {out} holds this same sweep: finished chunks are kept", file=sys.stderr)
     return existing
-  if out.exists() and any(not p.name.endswith(".tmp") for p in out.iterdir()):
+  if out.exists() and any(not p.name.endswith(".tmp") and not p.name.startswith(LOCK_FILE)
+                          for p in out.iterdir()):
     raise ConfigError(f"{out} is not empty and holds no sweep schedule; choose another --out "
                       f"(or --resume DIR for an interrupted sweep)")
   return None
 
 
-__all__ = ["LEGACY_FILE", "MEMORY_FRACTION", "RUN_KEYS", "SCHEDULE_FILE", "SweepResult",
+__all__ = ["LEGACY_FILE", "LOCK_FILE", "MEMORY_FRACTION", "RUN_KEYS", "SCHEDULE_FILE",
+           "SweepResult",
            "fit_chunk", "load_config", "make_spec", "parse_random_spec", "read_schedule", "sweep",
            "sweep_table"]

@@ -16,13 +16,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from jaxplore import driver, results
+from jaxplore import driver, interrupts, results
 from jaxplore.resolve import Resolved
 from jaxplore.sweeps.schedule import Chunk, Group, Schedule, chunk_paths
 
@@ -51,6 +52,7 @@ def run_chunk(group_run: GroupRun, chunk: Chunk, n_dev: int, tally: dict, times:
       group_run.compiled = driver.compile_advance(config, group.chunk_epochs, n_dev, world,
                                                   batch.params, state)
     times["compile_s"] += time.perf_counter() - t0
+  interrupts.check("interrupted while compiling")
   rollout = driver.drive(group_run.compiled, world, batch.params, state, config.max_steps)
   times["run_s"] += rollout.run_s
   episodes, curves = results.tables(config, resolved.grid, world, rollout.state, rollout.records,
@@ -84,7 +86,29 @@ def label_episodes(episodes: pd.DataFrame, group_run: GroupRun, chunk: Chunk,
 
 
 def is_done(out: Path, chunk: Chunk) -> bool:
-  return chunk_paths(out, chunk.index)["episodes"].exists()
+  """Whether chunk's tables are in ``out``: both files there, readable Parquet, one episode per
+  row of the chunk."""
+  return chunk_damage(out, chunk) is None and chunk_paths(out, chunk.index)["episodes"].exists()
+
+
+def chunk_damage(out: Path, chunk: Chunk) -> str | None:
+  """What is wrong with a chunk's files (one missing, empty or not Parquet, a wrong row count),
+  or None when they are whole or were never written (no episodes file: not done)."""
+  import pyarrow.parquet as pq
+  paths = chunk_paths(out, chunk.index)
+  if not paths["episodes"].exists():
+    return None
+  for kind in ("episodes", "curves"):
+    path = paths[kind]
+    if not path.exists():
+      return f"{path.name} is missing"
+    try:
+      rows = pq.read_metadata(path).num_rows
+    except Exception as err:  # pyarrow's errors for a torn or empty file vary by version
+      return f"{path.name} is unreadable ({type(err).__name__}: {err})"
+    if kind == "episodes" and rows != len(chunk.rows):
+      return f"{path.name} holds {rows} episodes, not {len(chunk.rows)}"
+  return None
 
 
 def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_dev: int,
@@ -108,6 +132,12 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
   work, done_rows = [], 0
   for group_run in group_runs:
     for chunk in group_run.group.chunks():
+      damage = None if out is None else chunk_damage(out, chunk)
+      if damage is not None and chunk.index % n_processes == process:
+        print(f"jaxplore: chunk {chunk.index} of {out} is damaged ({damage}): computing it again",
+              file=sys.stderr)
+        for path in chunk_paths(out, chunk.index).values():
+          path.unlink(missing_ok=True)
       if out is not None and is_done(out, chunk):
         done_rows += len(chunk.rows)
       elif chunk.index % n_processes == process:
@@ -151,6 +181,7 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
       if bar is not None:
         bar.update(len(chunk.rows))
         bar.set_postfix(chunk=f"{i + 1}/{len(work)}", compiles=tally.get("count", 0))
+      interrupts.check("interrupted")
   except KeyboardInterrupt:
     if bar is not None:
       bar.close()

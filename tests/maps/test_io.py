@@ -375,3 +375,23 @@ def test_resample_to_same_resolution_is_a_copy():
   same = resample(grid, 0.05)
   np.testing.assert_array_equal(same.occupied, grid.occupied)
   assert same.occupied is not grid.occupied
+
+
+def test_a_map_above_pillows_bomb_limit_loads_and_one_beyond_memory_is_refused(tmp_path,
+                                                                               monkeypatch):
+  """Pillow refuses images over 2 x MAX_IMAGE_PIXELS (a 20000 x 20000 map) as decompression
+  bombs; a map is checked against the memory reading it takes instead."""
+  from jaxplore.maps import io
+  pixels = np.full((40, 60), 254, np.uint8)
+  pixels[10, :30] = 0
+  yaml_path = _write_yaml(tmp_path / "map.yaml", image="map.png")
+  _write_image(tmp_path / "map.png", pixels)
+  monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)  # 2400 px is a "bomb" now
+  with pytest.raises(Image.DecompressionBombError):
+    Image.open(tmp_path / "map.png")
+  grid = load_map(yaml_path)
+  np.testing.assert_array_equal(grid.occupied, pixels[::-1] < 200)
+  assert Image.MAX_IMAGE_PIXELS == 100  # restored
+  monkeypatch.setattr(io, "_available_bytes", lambda: 10_000)
+  with pytest.raises(MapError, match=r"60 x 40 pixels .* more than 80% of the"):
+    load_map(yaml_path)

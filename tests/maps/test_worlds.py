@@ -199,3 +199,13 @@ def test_render_png(tmp_path):
       assert image.format == "PNG" and image.size[0] > 300
   with pytest.raises(ValueError, match="shape"):
     render_png(grid, tmp_path / "bad.png", [np.zeros((3, 3))])
+
+
+def test_a_much_finer_world_is_announced_and_an_unindexable_one_refused(capsys):
+  with pytest.raises(MapError, match=r"lab.* at 1e-09 m/cell would be .* more than the"):
+    get_world("lab", res=1e-9)
+  get_world("open", res=0.05)  # 4x the native cells: drawn without a word
+  assert "warning" not in capsys.readouterr().err
+  get_world("lab", res=0.025)  # 16x
+  err = capsys.readouterr().err
+  assert "world 'lab' at 0.025 m/cell is 680 x 520 = 353,600 cells, 16x its 170 x 130" in err
