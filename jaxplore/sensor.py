@@ -39,6 +39,10 @@ import jax
 import jax.numpy as jnp
 
 CORNER_EPS = 1e-3  # cells; a grid line crossed this close to another counts as a corner
+# cells past a measured range at which the obstacle is placed (half a cell: inside the wall that a
+# range measured exactly to its face ended on, whatever the few-mm error of an estimated pose; at
+# a hair past the face, such an error put one wall in two into the free cell in front of it).
+HIT_DEPTH = 0.5
 # Beams walked in lockstep (the vector width) and crossings per axis per loop iteration. A group
 # walks as far as its longest beam; an iteration has a fixed cost of about a microsecond on
 # XLA:CPU. The best trade-offs measured on this 2-core CPU (experiments/bench_engine.py worlds,
@@ -317,11 +321,11 @@ def end_cells(scan: Scan, u0, v0, exact_hits, dirs=None):
 
   ``exact_hits`` (traced bool: no range noise and (u0, v0) is the pose the scan was cast from)
   gives the exact truth cell that stopped the beam (it may be a corner side cell); otherwise the
-  cell just past the measured end point along the beam. ``dirs``: as for :func:`measure`.
+  cell ``HIT_DEPTH`` (half a cell) past the measured end point along the beam. ``dirs``: as for :func:`measure`.
   """
   du, dv = directions(scan.angles) if dirs is None else dirs
-  end_u = u0 + (scan.ranges + CORNER_EPS) * du
-  end_v = v0 + (scan.ranges + CORNER_EPS) * dv
+  end_u = u0 + (scan.ranges + HIT_DEPTH) * du
+  end_v = v0 + (scan.ranges + HIT_DEPTH) * dv
   rows = jnp.where(exact_hits, scan.hit_rows, jnp.floor(end_v).astype(jnp.int32))
   cols = jnp.where(exact_hits, scan.hit_cols, jnp.floor(end_u).astype(jnp.int32))
   return rows, cols
@@ -379,7 +383,13 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
   """
   du, dv = directions(scan.angles) if dirs is None else dirs
   sink = observed.shape[0] - 1
-  end_ok = scan.hit & _inside(end_rows, end_cols, shape)
+  start_row, start_col = jnp.floor(v0).astype(jnp.int32), jnp.floor(u0).astype(jnp.int32)
+  # The cell the robot stands in is no obstacle it can see. Integrated from an estimated pose a
+  # hair away from the true one, a beam that hits a wall the robot is touching can end a hair
+  # short of it, in the robot's own cell; believed occupied, that cell would leave the robot
+  # nowhere to plan from.
+  own = (end_rows == start_row) & (end_cols == start_col)
+  end_ok = scan.hit & _inside(end_rows, end_cols, shape) & ~own
   end_index = jnp.where(end_ok, _observation_index(end_rows, end_cols, shape), -1)
 
   def free_index(rows, cols, t, ranges, end_index):
@@ -387,8 +397,8 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
     free = (t < ranges) & _inside(rows, cols, shape) & (index != end_index)
     return jnp.where(free, index, sink)
 
-  start_rows = jnp.broadcast_to(jnp.floor(v0).astype(jnp.int32), scan.ranges.shape)
-  start_cols = jnp.broadcast_to(jnp.floor(u0).astype(jnp.int32), scan.ranges.shape)
+  start_rows = jnp.broadcast_to(start_row, scan.ranges.shape)
+  start_cols = jnp.broadcast_to(start_col, scan.ranges.shape)
   start = free_index(start_rows, start_cols, 0.0, jnp.where(active, scan.ranges, 0.0), end_index)
   observed = observed.at[start].set(1, mode=PROMISE_IN_BOUNDS)
 

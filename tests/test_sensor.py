@@ -148,6 +148,48 @@ def test_mark_observed_marks_traversed_cells_free_and_end_occupied():
   assert not np.asarray(inactive[:-1]).any()
 
 
+
+_ends_from_estimate = jax.jit(lambda truth, u, v, eu, ev, angles: sensor.end_cells(
+    sensor.measure(truth, (24, 24), u, v, angles, 20.0, 21), eu, ev, jnp.bool_(False)))
+
+
+def test_a_hit_seen_from_a_hair_off_estimate_lands_in_the_wall_not_in_front_of_it():
+  # Ranges end exactly on a wall's face; integrated from an estimate a few mm off the true pose
+  # (0.002 cells either way), each hit must still land in the wall (a free cell in front of it
+  # marked occupied thickens the wall; in a doorway that closes the door). Oracle: the truth.
+  occupied = np.zeros((24, 24), bool)
+  occupied[:, 18] = occupied[3, :] = True
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  rng = np.random.default_rng(4)
+  angles = jnp.asarray(np.linspace(-math.pi, math.pi, 181)[:-1], jnp.float32)
+  for u0, v0 in ((10.5, 10.5), (17.3, 4.1), (12.0, 9.0)):
+    for offset in rng.uniform(-2e-3, 2e-3, (6, 2)):
+      rows, cols = _ends_from_estimate(truth, jnp.float32(u0), jnp.float32(v0),
+                                       jnp.float32(u0 + offset[0]), jnp.float32(v0 + offset[1]),
+                                       angles)
+      scan = sensor.measure(truth, (24, 24), jnp.float32(u0), jnp.float32(v0), angles, 20.0, 21)
+      hit = np.asarray(scan.hit)
+      rows, cols = np.asarray(rows)[hit], np.asarray(cols)[hit]
+      framed = np.pad(occupied, 1, constant_values=True)  # outside the map counts as occupied
+      wall = framed[np.clip(rows + 1, 0, 25), np.clip(cols + 1, 0, 25)]
+      assert wall.all(), (u0, v0, offset, rows[~wall], cols[~wall])
+
+
+def test_a_hit_never_marks_the_cell_the_robot_stands_in():
+  # A robot touching a wall (0.05 cells from its face): an end cell that falls in the robot's own
+  # cell is dropped, the cell stays observed free.
+  occupied = np.zeros((20, 20), bool)
+  occupied[:, 15] = True
+  u0, v0 = jnp.float32(14.95), jnp.float32(10.5)
+  scan = sensor.measure(sensor.frame_truth(jnp.asarray(occupied)), occupied.shape, u0, v0,
+                        jnp.asarray([0.0], jnp.float32), 18.0, 19)
+  rows, cols = jnp.asarray([10], jnp.int32), jnp.asarray([14], jnp.int32)  # as if it fell short
+  observed = sensor.mark_observed(sensor.empty_observation((20, 20)), (20, 20), scan, u0, v0, rows,
+                                  cols, 19)
+  grid = np.asarray(sensor.observation_grid(observed, (20, 20)))
+  assert grid[10, 14] == 1 and not (grid == 2).any()
+
+
 # The reference enumeration is compiled: XLA contracts ``t0 + k * step`` into a fused multiply-add
 # inside compiled code (the engine's loops always are), so op-by-op results can differ by an ulp.
 _trace = jax.jit(sensor.trace, static_argnums=3)
