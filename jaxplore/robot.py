@@ -157,7 +157,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
     else:
       est_uv = true_uv
       exact = params.range_noise <= 0
-    end_rows, end_cols = sensor.end_cells(scan, est_uv[0], est_uv[1], exact, est_dirs)
+    end_rows, end_cols = sensor.end_cells(scan, est_uv[0], est_uv[1], exact, est_dirs,
+                                          true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
     observed = sensor.mark_observed(sensor.empty_observation(shape), shape, scan, est_uv[0], est_uv[1],
                                     end_rows, end_cols, n_cross, active, est_dirs)
 

@@ -39,10 +39,6 @@ import jax
 import jax.numpy as jnp
 
 CORNER_EPS = 1e-3  # cells; a grid line crossed this close to another counts as a corner
-# cells past a measured range at which the obstacle is placed (half a cell: inside the wall that a
-# range measured exactly to its face ended on, whatever the few-mm error of an estimated pose; at
-# a hair past the face, such an error put one wall in two into the free cell in front of it).
-HIT_DEPTH = 0.5
 # Beams walked in lockstep (the vector width) and crossings per axis per loop iteration. A group
 # walks as far as its longest beam; an iteration has a fixed cost of about a microsecond on
 # XLA:CPU. The best trade-offs measured on this 2-core CPU (experiments/bench_engine.py worlds,
@@ -316,16 +312,35 @@ def cast(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=Non
   return scan, trace(u0, v0, angles, n_cross)
 
 
-def end_cells(scan: Scan, u0, v0, exact_hits, dirs=None):
+def end_cells(scan: Scan, u0, v0, exact_hits, dirs=None, true_origin=None, true_dirs=None):
   """(rows, cols) i32[n]: the cell each beam's measured range ends in, seen from (u0, v0).
 
   ``exact_hits`` (traced bool: no range noise and (u0, v0) is the pose the scan was cast from)
-  gives the exact truth cell that stopped the beam (it may be a corner side cell); otherwise the
-  cell ``HIT_DEPTH`` (half a cell) past the measured end point along the beam. ``dirs``: as for :func:`measure`.
+  gives the exact truth cell that stopped the beam (it may be a corner side cell). Otherwise the
+  truth's hit cell is carried into the frame of (u0, v0) and of the beams' ``dirs``: its centre's
+  offset from the point where the true beam met it (along and across the beam) is added to the
+  measured range along the measured beam. A range measured exactly to a wall's face thus ends
+  inside that wall whatever the few-mm error of an estimated pose (the end point itself, on the
+  face, fell in front of it about one time in two), range noise moves the hit along the beam, and
+  a larger pose error moves it as a rigid motion of the scan would.
+
+  Args:
+    scan: the scan (``angles`` may be the estimated frame's; ``true_ranges`` and the hit cells
+      are the truth's).
+    u0, v0: where the scan is integrated from (the estimate), cells.
+    dirs: :func:`directions` of ``scan.angles``, if the caller has them.
+    true_origin, true_dirs: the pose and beam directions the scan was cast from (default: the
+      same as ``(u0, v0)`` and ``dirs``).
   """
   du, dv = directions(scan.angles) if dirs is None else dirs
-  end_u = u0 + (scan.ranges + HIT_DEPTH) * du
-  end_v = v0 + (scan.ranges + HIT_DEPTH) * dv
+  tu, tv = (u0, v0) if true_origin is None else true_origin
+  tdu, tdv = (du, dv) if true_dirs is None else true_dirs
+  centre_u = scan.hit_cols.astype(jnp.float32) + 0.5 - (tu + scan.true_ranges * tdu)
+  centre_v = scan.hit_rows.astype(jnp.float32) + 0.5 - (tv + scan.true_ranges * tdv)
+  along = centre_u * tdu + centre_v * tdv
+  across = centre_v * tdu - centre_u * tdv  # along (-dv, du)
+  end_u = u0 + (scan.ranges + along) * du - across * dv
+  end_v = v0 + (scan.ranges + along) * dv + across * du
   rows = jnp.where(exact_hits, scan.hit_rows, jnp.floor(end_v).astype(jnp.int32))
   cols = jnp.where(exact_hits, scan.hit_cols, jnp.floor(end_u).astype(jnp.int32))
   return rows, cols

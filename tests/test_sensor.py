@@ -150,7 +150,8 @@ def test_mark_observed_marks_traversed_cells_free_and_end_occupied():
 
 
 _ends_from_estimate = jax.jit(lambda truth, u, v, eu, ev, angles: sensor.end_cells(
-    sensor.measure(truth, (24, 24), u, v, angles, 20.0, 21), eu, ev, jnp.bool_(False)))
+    sensor.measure(truth, (24, 24), u, v, angles, 20.0, 21), eu, ev, jnp.bool_(False),
+    true_origin=(u, v)))
 
 
 def test_a_hit_seen_from_a_hair_off_estimate_lands_in_the_wall_not_in_front_of_it():
@@ -174,6 +175,20 @@ def test_a_hit_seen_from_a_hair_off_estimate_lands_in_the_wall_not_in_front_of_i
       wall = framed[np.clip(rows + 1, 0, 25), np.clip(cols + 1, 0, 25)]
       assert wall.all(), (u0, v0, offset, rows[~wall], cols[~wall])
 
+
+def test_hits_seen_from_a_shifted_estimate_move_with_it():
+  # An estimate 3 cells right and 2 up of the truth, same heading: every hit cell moves by the
+  # same (2, 3) cells, as the rigid motion of the whole scan would move it.
+  occupied = np.zeros((24, 24), bool)
+  occupied[:, 18] = occupied[3, :] = True
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  angles = jnp.asarray(np.linspace(-math.pi, math.pi, 91)[:-1], jnp.float32)
+  rows, cols = _ends_from_estimate(truth, jnp.float32(9.3), jnp.float32(8.6), jnp.float32(12.3),
+                                   jnp.float32(10.6), angles)
+  scan = sensor.measure(truth, (24, 24), jnp.float32(9.3), jnp.float32(8.6), angles, 20.0, 21)
+  hit = np.asarray(scan.hit)
+  np.testing.assert_array_equal(np.asarray(rows)[hit], np.asarray(scan.hit_rows)[hit] + 2)
+  np.testing.assert_array_equal(np.asarray(cols)[hit], np.asarray(scan.hit_cols)[hit] + 3)
 
 def test_a_hit_never_marks_the_cell_the_robot_stands_in():
   # A robot touching a wall (0.05 cells from its face): an end cell that falls in the robot's own
@@ -282,7 +297,8 @@ def test_mark_observed_equals_the_cells_of_trace(transform, walk, monkeypatch):
     free = (t < np.asarray(scan.ranges)[:, None]) & ~is_end & inside
     expected = np.zeros((h, w), np.int8)
     expected[rows[free], cols[free]] = 1
-    ends_inside = hit & (end_rows >= 0) & (end_rows < h) & (end_cols >= 0) & (end_cols < w)
+    own = (end_rows == np.floor(v0 + offset[1])) & (end_cols == np.floor(u0 + offset[0]))
+    ends_inside = hit & (end_rows >= 0) & (end_rows < h) & (end_cols >= 0) & (end_cols < w) & ~own
     expected[end_rows[ends_inside], end_cols[ends_inside]] = 2
     np.testing.assert_array_equal(np.asarray(grid), expected)
 
