@@ -28,9 +28,12 @@ from jaxplore.config import ConfigError
 REPO = Path(jaxplore.__file__).resolve().parents[1]
 SETTINGS = dict(world="open", res=0.5, planner="li2020", max_steps=30, replan_every=5,
                 params={"r_max": 2.0}, progress=False, quiet=True, devices=1)
-GRID = {"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}
+# A sensor setting and a planner weight: the field of view changes the very first scan, so every
+# setting's coverage differs (li2020 follows its first path for all 30 steps, so alpha and k1
+# alone may not show within them).
+GRID = {"fov": [3.0, 6.0], "k1": [0.0, 0.3]}
 CLI_ARGS = ["sweep", "--world", "open", "--res", "0.5", "--planner", "li2020", "--max-steps", "30",
-            "--replan-every", "5", "--set", "r_max=2", "--grid", "alpha=1,2", "k1=0,0.3",
+            "--replan-every", "5", "--set", "r_max=2", "--grid", "fov=3,6", "k1=0,0.3",
             "--seeds", "2", "--chunk-size", "3", "--devices", "1", "--no-progress", "--quiet"]
 
 
@@ -84,8 +87,8 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
   pd.testing.assert_frame_equal(episodes, result.episodes)
   # one row per robot-episode (the padding of the last chunk dropped), every swept value a column
   assert episodes.robot.tolist() == list(range(8))
-  assert sorted(set(zip(episodes.alpha, episodes.k1, episodes.seed))) == sorted(
-      (a, k, s) for a in (1.0, 2.0) for k in (0.0, 0.3) for s in (0, 1))
+  assert sorted(set(zip(episodes.fov, episodes.k1, episodes.seed))) == sorted(
+      (a, k, s) for a in (3.0, 6.0) for k in (0.0, 0.3) for s in (0, 1))
   assert set(curves.robot) == set(range(8))
   assert (episodes.world == "open").all() and (episodes.planner == "li2020").all()
   # common random numbers: a seed starts at the same pose in every setting
@@ -93,10 +96,13 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
   for s in (0, 1):
     rows = episodes.robot[episodes.seed == s]
     assert first.loc[rows, "x"].nunique() == 1 and first.loc[rows, "y"].nunique() == 1
-  # the settings differ (the sweep is not running one setting eight times)
-  assert episodes.coverage.nunique() > 2
+  # the settings differ (the sweep is not running one setting eight times): each seed's coverage
+  # depends on its field of view
+  for s in (0, 1):
+    mine = episodes[episodes.seed == s]
+    assert mine[mine.fov == 3.0].coverage.max() != mine[mine.fov == 6.0].coverage.max()
   config = json.loads((out / "config.json").read_text())
-  assert config["sweep"]["grid"] == {"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}
+  assert config["sweep"]["grid"] == {"fov": [3.0, 6.0], "k1": [0.0, 0.3]}
   assert config["groups"][0]["sim_config"]["max_steps"] == 30
   # jaxplore plot DIR redraws every figure of a sweep folder, sweep.png included
   (out / "sweep.png").unlink()
@@ -199,7 +205,7 @@ def test_kill_9_then_resume_gives_the_uninterrupted_table(reference, tmp_path):
 SHARDED = textwrap.dedent("""
     import sys, jax, jaxplore
     assert len(jax.devices()) == 2, jax.devices()
-    result = jaxplore.sweep({"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}, seeds=2, world="open", res=0.5,
+    result = jaxplore.sweep({"fov": [3.0, 6.0], "k1": [0.0, 0.3]}, seeds=2, world="open", res=0.5,
                             planner="li2020", max_steps=30, replan_every=5, params={"r_max": 2.0},
                             progress=False, quiet=True, devices=2, chunk_size=4)
     assert result.timing["compiles"] == 1 and result.timing["sharded_over"] == 2, result.timing
