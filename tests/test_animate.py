@@ -92,6 +92,7 @@ def sweep_dir(tmp_path_factory, run_dir):
   return out
 
 
+@pytest.mark.slow  # a whole sweep in subprocesses or through the CLI: `pytest -m slow`
 def test_replay_of_sweep_rows_reproduces_them(sweep_dir):
   curves = pd.read_parquet(sweep_dir / "curves.parquet")
   replay = animate.resimulate(sweep_dir, (1, 0), progress=False)
@@ -109,6 +110,7 @@ def test_replay_of_sweep_rows_reproduces_them(sweep_dir):
   assert not np.allclose(entropy[0], entropy[1])
 
 
+@pytest.mark.slow  # a whole sweep in subprocesses or through the CLI: `pytest -m slow`
 def test_sweep_robots_of_different_groups_are_refused(sweep_dir, tmp_path):
   copy = tmp_path / "copy"
   shutil.copytree(sweep_dir, copy)

@@ -111,6 +111,7 @@ def test_cli_errors_are_one_clear_line(capsys):
   assert err.startswith("jaxplore: error:") and "atlantis" in err
 
 
+@pytest.mark.slow  # a whole sweep in subprocesses or through the CLI: `pytest -m slow`
 def test_sweep_is_one_batch_with_parameter_columns(tmp_path):
   from jaxplore.runner import sweep
   result = sweep({"alpha": [1.0, 2.0], "k1": [0.0, 0.3]}, seeds=2, world="lab", planner="li2020",
@@ -136,6 +137,7 @@ def test_sweep_refuses_unknown_names_and_bad_weights():
     sweep({"k1": [0.9]}, seeds=1, world="lab", planner="li2020", max_steps=10, progress=False)
 
 
+@pytest.mark.slow  # a whole sweep in subprocesses or through the CLI: `pytest -m slow`
 def test_cli_takes_parameters_as_flags(tmp_path, capsys):
   from jaxplore import cli
   from conftest import box_world

@@ -178,6 +178,7 @@ KILLABLE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # a whole sweep in subprocesses or through the CLI: `pytest -m slow`
 def test_kill_9_then_resume_gives_the_uninterrupted_table(reference, tmp_path):
   _, ref_out, _ = reference
   out = tmp_path / "killed"
@@ -214,6 +215,7 @@ SHARDED = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # a whole sweep in subprocesses or through the CLI: `pytest -m slow`
 def test_sharded_sweep_equals_unsharded_bit_for_bit(reference, tmp_path):
   """Two host devices, chunks of 4 sharded 2 + 2, against one device and chunks of 3: the same
   rows land in different chunks, positions and devices, and every number is identical."""
