@@ -158,6 +158,26 @@ def clusters(mask: jax.Array, max_clusters: int, max_rounds: int | None = None) 
                   count=jnp.sum(is_root).astype(jnp.int32))
 
 
+def nearest_to_centroid(found: Clusters, eligible: jax.Array) -> jax.Array:
+  """i32[K]: the flat index (row-major) of each cluster's ``eligible`` cell nearest to its
+  centroid, ties to the first in row-major order; ``H * W`` for a cluster with none."""
+  height, width = found.ids.shape
+  slots = found.size.shape[0]
+  rows = jax.lax.broadcasted_iota(jnp.int32, (height, width), 0)
+  cols = jax.lax.broadcasted_iota(jnp.int32, (height, width), 1)
+  segment = jnp.where(eligible, found.ids, slots).ravel()
+  own_centroid = found.centroid[jnp.clip(found.ids, 0, slots - 1)]
+  offset_sq = ((rows - own_centroid[..., 0]) ** 2 + (cols - own_centroid[..., 1]) ** 2).ravel()
+  # Materialised once: the equality test below must see the very values the minimum was taken
+  # over, not a recomputation that XLA may contract differently.
+  offset_sq = jax.lax.optimization_barrier(offset_sq)
+  best_sq = jax.ops.segment_min(offset_sq, segment, num_segments=slots + 1)
+  return jax.ops.segment_min(
+      jnp.where(offset_sq == best_sq[segment], jnp.arange(height * width, dtype=jnp.int32),
+                height * width),
+      segment, num_segments=slots + 1)[:slots]
+
+
 def nearest_label_manhattan(labels: jax.Array, num_labels: int) -> tuple[jax.Array, jax.Array]:
   """Manhattan (D4) distance from every cell to the nearest labelled cell, and that cell's label.
 

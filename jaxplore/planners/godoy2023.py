@@ -159,20 +159,8 @@ def cluster_goals(config, view: base.BeliefView, robot: base.RobotView, dist,
                            jnp.array([[height - 1, width - 1]], jnp.int32))
   centroid_ok = (view.traversable & reachable)[centroid_cell[:, 0], centroid_cell[:, 1]]
 
-  rows = jax.lax.broadcasted_iota(jnp.int32, (height, width), 0)
-  cols = jax.lax.broadcasted_iota(jnp.int32, (height, width), 1)
   eligible = (found.ids >= 0) & reachable
-  segment = jnp.where(eligible, found.ids, slots).ravel()
-  own_centroid = found.centroid[jnp.clip(found.ids, 0, slots - 1)]
-  offset_sq = ((rows - own_centroid[..., 0]) ** 2 + (cols - own_centroid[..., 1]) ** 2).ravel()
-  # Materialised once: the equality test below must see the very values the minimum was taken
-  # over, not a recomputation that XLA may contract differently.
-  offset_sq = jax.lax.optimization_barrier(offset_sq)
-  best_sq = jax.ops.segment_min(offset_sq, segment, num_segments=slots + 1)
-  # Equal offsets: the first cell in row-major order.
-  nearest_flat = jax.ops.segment_min(
-      jnp.where(offset_sq == best_sq[segment], jnp.arange(height * width, dtype=jnp.int32), height * width),
-      segment, num_segments=slots + 1)[:slots]
+  nearest_flat = labels.nearest_to_centroid(found, eligible)
   has_eligible = nearest_flat < height * width
   nearest_cell = jnp.stack([nearest_flat // width, nearest_flat % width], axis=-1).astype(jnp.int32)
 
@@ -183,6 +171,8 @@ def cluster_goals(config, view: base.BeliefView, robot: base.RobotView, dist,
   offset = (goal - robot.cell[None, :]).astype(jnp.float32)
   distance = jnp.sqrt(jnp.sum(offset * offset, axis=-1)) * config.res
   # The authors' code measures d to the frontier's cell nearest to the robot (any of its cells).
+  rows = jax.lax.broadcasted_iota(jnp.int32, (height, width), 0)
+  cols = jax.lax.broadcasted_iota(jnp.int32, (height, width), 1)
   to_robot = ((rows - robot.cell[0]) ** 2 + (cols - robot.cell[1]) ** 2).astype(jnp.float32)
   member = jnp.where(found.ids >= 0, found.ids, slots).ravel()
   nearest = jnp.sqrt(jax.ops.segment_min(to_robot.ravel(), member, num_segments=slots + 1)[:slots])

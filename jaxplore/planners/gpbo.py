@@ -132,19 +132,7 @@ def _weights(params) -> dict:
 def reference_cells(clusters: labels.Clusters):
   """i32[K, 2]: each cluster's cell nearest to its centroid (ties: first in row-major order)."""
   height, width = clusters.ids.shape
-  slots = clusters.size.shape[0]
-  rows = jax.lax.broadcasted_iota(jnp.int32, (height, width), 0)
-  cols = jax.lax.broadcasted_iota(jnp.int32, (height, width), 1)
-  member = clusters.ids >= 0
-  segment = jnp.where(member, clusters.ids, slots).ravel()
-  own = clusters.centroid[jnp.clip(clusters.ids, 0, slots - 1)]
-  offset_sq = ((rows - own[..., 0]) ** 2 + (cols - own[..., 1]) ** 2).ravel()
-  # One materialised value for the minimum and the equality test (see godoy2023).
-  offset_sq = jax.lax.optimization_barrier(offset_sq)
-  best = jax.ops.segment_min(offset_sq, segment, num_segments=slots + 1)
-  flat = jax.ops.segment_min(
-      jnp.where(offset_sq == best[segment], jnp.arange(height * width, dtype=jnp.int32), height * width),
-      segment, num_segments=slots + 1)[:slots]
+  flat = labels.nearest_to_centroid(clusters, clusters.ids >= 0)
   flat = jnp.minimum(flat, height * width - 1)
   return jnp.stack([flat // width, flat % width], axis=-1).astype(jnp.int32)
 
