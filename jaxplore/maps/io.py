@@ -118,9 +118,7 @@ def load_map(yaml_path: str | os.PathLike, *, name: str | None = None,
     plan = None if res is None else _coarse_plan(name, (image.height, image.width), resolution,
                                                   res)
     shape = (image.height, image.width) if plan is None else plan.shape
-    strip = image.strip_rows() * image.width
-    need = (image.whole_bytes + strip * STRIP_BYTES_PER_PIXEL
-            + shape[0] * shape[1] * GRID_BYTES_PER_CELL)
+    need = image.read_bytes(shape)
     have = _available_bytes()
     if need > 0.8 * have:
       raise MapError(f"{where}: image {str(image_path)!r} is {image.width} x {image.height} "
@@ -277,9 +275,11 @@ def _coarse_plan(name: str, shape: tuple[int, int], fine_res: float,
 # coarser resolution never holds a full-size array: a binary PGM streams from the file; other
 # images are decoded whole by Pillow first (it cannot decode PNG rows on demand).
 STRIP_PIXELS = 1 << 22
-# Bytes per pixel of a strip's temporaries, at most (an RGBA strip: its crop and converted copy,
-# three uint16 channels, their sum, the free mask and its flipped complement).
+# Bytes per pixel of a strip's temporaries, at most: an RGBA strip's crop and converted copy,
+# its bands, three uint16 channels, their sum, the free mask and its flipped complement; a PGM
+# strip's samples (1 or 2 bytes), free mask and complement.
 STRIP_BYTES_PER_PIXEL = 24
+PGM_STRIP_BYTES_PER_PIXEL = 4
 # Bytes per cell of the grid being filled, and of the copy `GridMap` makes of it.
 GRID_BYTES_PER_CELL = 2
 # Image modes read through Pillow, and the channels whose sum gives the grey value.
@@ -374,6 +374,13 @@ class _MapImage:
 
   def strip_rows(self) -> int:
     return max(1, min(self.height, STRIP_PIXELS // self.width))
+
+  def read_bytes(self, shape: tuple[int, int]) -> int:
+    """Peak memory of reading the image into a grid of ``shape``: the decoded image if Pillow
+    decodes it whole, one strip's temporaries and the grid."""
+    per_pixel = PGM_STRIP_BYTES_PER_PIXEL if self._file is not None else STRIP_BYTES_PER_PIXEL
+    strip = self.strip_rows() * self.width * per_pixel
+    return self.whole_bytes + strip + shape[0] * shape[1] * GRID_BYTES_PER_CELL
 
   def free_strips(self, negate: bool, free_thresh: float):
     """Yields ``(first image row, bool[rows, W] free mask)`` down the image (row 0 at the top).
