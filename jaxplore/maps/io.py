@@ -320,9 +320,11 @@ class _MapImage:
       token = b""
       while True:
         c = self._file.read(1)
-        if c == b"#" and not token:
+        if c == b"#":
           while c not in (b"\n", b"\r", b""):
             c = self._file.read(1)
+          if token:
+            break
           continue
         if c == b"" or c.isspace():
           if token or c == b"":
