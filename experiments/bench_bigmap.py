@@ -100,7 +100,8 @@ def main():
                          "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
     t0 = time.perf_counter()
     write_image(Path(folder) / image, args.size)
-    print(f"wrote {args.size} x {args.size} {args.format} in {time.perf_counter() - t0:.0f} s", flush=True)
+    print(f"wrote {args.size} x {args.size} {args.format} in {time.perf_counter() - t0:.0f} s",
+          flush=True)
     for res in args.res:
       for label, tree in (spec.split("=", 1) for spec in args.trees):
         row = dict(measure(Path(tree).resolve(), yaml_path, res, image), tree=label, res=res)

@@ -531,7 +531,8 @@ def test_memory_check_counts_a_whole_decode_but_only_a_strip_of_a_pgm(tmp_path, 
 
 def test_binary_pgm_header_with_comments_reads_as_pillow_reads_it(tmp_path):
   pixels = _map_pixels(np.random.default_rng(5), 6, 7, walls=2, speckle=0.2)
-  (tmp_path / "map.pgm").write_bytes(b"P5 # made by hand\n7\t# width\n\n6\r255\n" + pixels.tobytes())
+  header = b"P5 # made by hand\n7\t# width\n\n6\r255\n"
+  (tmp_path / "map.pgm").write_bytes(header + pixels.tobytes())
   np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "map.pgm")), pixels)
   np.testing.assert_array_equal(load_map(_write_yaml(tmp_path / "map.yaml")).occupied,
                                 _expected_grid(pixels, 0.1, 0.1))
