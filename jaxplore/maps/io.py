@@ -313,7 +313,7 @@ class _MapImage:
       raise MapError(f"{where}: image {str(image_path)!r} is unreadable ({e})") from e
 
   def _open_pgm(self) -> None:
-    self._file = open(self.path, "rb")  # pylint: disable=consider-using-with
+    self._file = open(self.path, "rb")  # closed by close()
     self._file.read(2)
     tokens = []
     while len(tokens) < 3:  # width, height, maxval; '#' starts a comment to the line's end
@@ -331,7 +331,9 @@ class _MapImage:
             break
           continue
         token += c
-      if not token.isdigit():
+        if len(token) > 10:  # Pillow's limit too: no header field of a PGM is longer
+          break
+      if not token.isdigit() or len(token) > 10:
         raise MapError(f"{self.where}: image {str(self.path)!r} is unreadable (binary PGM header "
                        f"field {token.decode(errors='replace')!r} is not a positive integer)")
       tokens.append(int(token))

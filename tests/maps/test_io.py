@@ -504,6 +504,7 @@ def test_pgm_sample_depths(tmp_path):
     (b"P5\n4 -3\n255\n" + bytes(12), "unreadable .*'-3' is not a positive integer"),
     (b"P5\n4 3\n0\n" + bytes(12), r"unreadable .*maxval 0\)"),
     (b"P5\n4 3", "unreadable .*'' is not a positive integer"),
+    (b"P5\n4 3\n" + bytes(range(50, 58)) * 100, "unreadable .*'234567"),
 ])
 def test_broken_binary_pgm(tmp_path, content, message):
   (tmp_path / "map.pgm").write_bytes(content)
