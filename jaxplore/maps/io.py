@@ -334,8 +334,9 @@ class _MapImage:
         if len(token) > 10:  # Pillow's limit too: no header field of a PGM is longer
           break
       if not token.isdigit() or len(token) > 10:
+        field = token.decode(errors="replace")
         raise MapError(f"{self.where}: image {str(self.path)!r} is unreadable (binary PGM header "
-                       f"field {token.decode(errors='replace')!r} is not a positive integer)")
+                       f"field {field!r} is not a positive integer of at most 10 digits)")
       tokens.append(int(token))
     # One whitespace byte (read with the last token) separates the header from the pixels.
     self.width, self.height, self.maxval = tokens
