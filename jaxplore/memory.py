@@ -44,8 +44,9 @@ def estimate_bytes(config: SimConfig, robots: int) -> int:
   batch at once (one planning round's buffers per robot).
 
   Within 25 % of the measured peak RSS (less the runtime's own) on 1000^2 to 4000^2 cells with
-  1 and 4 robots on a CPU (``experiments/results/bench_memory.md``, where the constants were
-  fitted); lockstep's planning term is not measured here.
+  1 and 4 robots and on 8000^2 cells with 1 robot, on a CPU
+  (``experiments/results/bench_memory.md``, where the constants were fitted); lockstep's
+  planning term is not measured here.
   """
   cells = config.height * config.width
   records = config.max_steps * 10 * 4

@@ -194,7 +194,8 @@ def load_world(spec: str | os.PathLike, res: float | None = None) -> GridMap:
 
   Args:
     spec: a key of `WORLDS`, or a path to a ``.yaml``/``.yml`` file.
-    res: optional resolution; a loaded map can only be made coarser (`resample`).
+    res: optional resolution; a loaded map can only be made coarser (`resample`), and is
+      read at it directly (`load_map`).
 
   Returns:
     The world as a `GridMap`.
@@ -209,10 +210,8 @@ def load_world(spec: str | os.PathLike, res: float | None = None) -> GridMap:
   if path.suffix.lower() not in (".yaml", ".yml") and not path.is_file():
     raise MapError(f"unknown world {str(spec)!r}: not a built-in world ({', '.join(WORLDS)}) "
                    "and not a map YAML file")
-  grid = load_map(path)
-  if res is not None:
-    grid = resample(grid, res)
-  return grid
+  # Read at ``res`` directly: a binary PGM is then never held at its full size.
+  return load_map(path, res=res)
 
 
 def reachable_mask(grid: GridMap, start_cell: tuple[int, int]) -> np.ndarray:

@@ -395,3 +395,145 @@ def test_a_map_above_pillows_bomb_limit_loads_and_one_beyond_memory_is_refused(t
   monkeypatch.setattr(io, "_available_bytes", lambda: 10_000)
   with pytest.raises(MapError, match=r"60 x 40 pixels .* more than 80% of the"):
     load_map(yaml_path)
+
+
+# --- Reading big maps at a coarser resolution ------------------------------------------------
+
+
+def _write_pgm(path: Path, samples: np.ndarray, maxval: int = 255, plain: bool = False) -> Path:
+  """A PGM written by hand (binary P5 or plain-text P2), with map_saver's header comment."""
+  height, width = samples.shape
+  header = f"{'P2' if plain else 'P5'}\n# CREATOR: map_saver.cpp 0.050 m/pix\n{width} {height}\n"
+  header += f"{maxval}\n"
+  if plain:
+    body = "\n".join(" ".join(map(str, row)) for row in samples).encode() + b"\n"
+  else:
+    body = samples.astype(np.uint8 if maxval < 256 else ">u2").tobytes()
+  path.write_bytes(header.encode() + body)
+  return path
+
+
+def _expected_grid(pixels: np.ndarray, res_fine: float, res: float, free_thresh=0.196,
+                   negate=0) -> np.ndarray:
+  """The whole-image rule: each pixel classified (numpy), flipped, then `resample`d."""
+  grey = np.arange(256.0)  # each pixel's value looked up: float64 pixels of 36 Mpx are slow
+  occupancy = grey / 255 if negate else (255 - grey) / 255
+  whole = GridMap(~(occupancy < free_thresh)[pixels[::-1]], res_fine, name="whole")
+  return resample(whole, res).occupied
+
+
+def _map_pixels(rng, height: int, width: int, walls: int, speckle: float) -> np.ndarray:
+  """Free (254) with random wall segments (0) and scattered unknown (205) and grey pixels."""
+  pixels = np.full((height, width), 254, np.uint8)
+  for _ in range(walls):
+    row, col, length = rng.integers(0, height), rng.integers(0, width), rng.integers(5, 200)
+    if rng.random() < 0.5:
+      pixels[row, col:col + length] = 0
+    else:
+      pixels[row:row + length, col] = 0
+  spots = int(speckle * height * width)
+  pixels[rng.integers(0, height, spots), rng.integers(0, width, spots)] = rng.choice(
+      np.array([205, 206, 100, 0], np.uint8), size=spots)
+  return pixels
+
+
+@pytest.mark.parametrize("negate", [0, 1])
+def test_strips_of_a_pgm_give_the_whole_image_rule(tmp_path, monkeypatch, negate):
+  """Odd sizes and strips of 7 rows: coarse cells that straddle strips, partial last cells."""
+  from jaxplore.maps import io, load_world
+  rng = np.random.default_rng(negate)
+  pixels = _map_pixels(rng, 157, 203, walls=25, speckle=0.002)
+  if negate:
+    pixels = 255 - pixels
+  _write_pgm(tmp_path / "map.pgm", pixels)
+  _write_image(tmp_path / "map.png", pixels)
+  monkeypatch.setattr(io, "STRIP_PIXELS", 7 * 203)
+  for res_fine, res in [(0.05, 0.05), (0.05, 0.15), (0.048, 0.2), (0.05, 0.07), (0.1, 1.0)]:
+    pgm = _write_yaml(tmp_path / "pgm.yaml", image="map.pgm", resolution=res_fine, negate=negate)
+    png = _write_yaml(tmp_path / "png.yaml", image="map.png", resolution=res_fine, negate=negate)
+    expected = _expected_grid(pixels, res_fine, res, negate=negate)
+    for yaml_path in (pgm, png):
+      grid = load_map(yaml_path, res=res)
+      np.testing.assert_array_equal(grid.occupied, expected, err_msg=f"{yaml_path} at {res}")
+      assert grid.res == res and grid.name == yaml_path.stem
+    np.testing.assert_array_equal(load_world(pgm, res=res).occupied, expected)
+
+
+def test_a_6000_pixel_pgm_read_20_times_coarser(tmp_path):
+  rng = np.random.default_rng(6)
+  pixels = _map_pixels(rng, 5993, 6007, walls=3000, speckle=2e-5)
+  yaml_path = _write_yaml(tmp_path / "big.yaml", image="big.pgm", resolution=0.05)
+  _write_pgm(tmp_path / "big.pgm", pixels)
+  grid = load_map(yaml_path, res=1.0)
+  expected = _expected_grid(pixels, 0.05, 1.0)
+  assert grid.shape == expected.shape == (300, 301)
+  assert 0.05 < expected.mean() < 0.95
+  np.testing.assert_array_equal(grid.occupied, expected)
+
+
+def test_pgm_sample_depths(tmp_path):
+  """8-bit PGMs with maxval below 255 read as Pillow scales them; 16-bit PGMs (which Pillow
+  cannot read as grey) give p = (maxval - v) / maxval; plain-text PGM (P2) reads through Pillow;
+  16-bit P2 is refused with the way out."""
+  rng = np.random.default_rng(3)
+  yaml_path = _write_yaml(tmp_path / "map.yaml", image="map.pgm")
+  for maxval in (15, 100):
+    samples = rng.integers(0, maxval + 1, (9, 11))
+    _write_pgm(tmp_path / "map.pgm", samples, maxval)
+    pillow_grey = np.asarray(Image.open(tmp_path / "map.pgm"))
+    np.testing.assert_array_equal(load_map(yaml_path).occupied,
+                                  _expected_grid(pillow_grey, 0.1, 0.1))
+  for maxval in (1000, 65535):
+    samples = rng.integers(0, maxval + 1, (9, 11))
+    samples[0, :3] = (0, maxval, round(maxval * 0.9))
+    _write_pgm(tmp_path / "map.pgm", samples, maxval)
+    free = (maxval - samples) / maxval < 0.196
+    np.testing.assert_array_equal(load_map(yaml_path).free, free[::-1])
+  pixels = _map_pixels(rng, 12, 14, walls=3, speckle=0.1)
+  _write_pgm(tmp_path / "map.pgm", pixels, plain=True)
+  np.testing.assert_array_equal(load_map(yaml_path, res=0.3).occupied,
+                                _expected_grid(pixels, 0.1, 0.3))
+  _write_pgm(tmp_path / "map.pgm", rng.integers(0, 1001, (9, 11)), 1000, plain=True)
+  with pytest.raises(MapError, match="map.pgm.*mode 'I'.*16-bit grey is read from binary PGM"):
+    load_map(yaml_path)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"P5\n4 3\n255\n" + bytes(11), "truncated: 11 bytes of pixels, 4 x 3 at 8 bits take 12"),
+    (b"P5\n4 3\n65535\n" + bytes(12), "truncated: 12 bytes .* at 16 bits take 24"),
+    (b"P5\n4 -3\n255\n" + bytes(12), "unreadable .*'-3' is not a positive integer"),
+    (b"P5\n4 3\n0\n" + bytes(12), r"unreadable .*maxval 0\)"),
+    (b"P5\n4 3", "unreadable .*'' is not a positive integer"),
+    (b"P5\n4 3\n" + bytes(range(50, 58)) * 100, "unreadable .*'234567"),
+])
+def test_broken_binary_pgm(tmp_path, content, message):
+  (tmp_path / "map.pgm").write_bytes(content)
+  with pytest.raises(MapError, match=f"map.yaml.*map.pgm.*{message}"):
+    load_map(_write_yaml(tmp_path / "map.yaml"))
+
+
+def test_memory_check_counts_a_whole_decode_but_only_a_strip_of_a_pgm(tmp_path, monkeypatch):
+  from jaxplore.maps import io
+  pixels = _map_pixels(np.random.default_rng(4), 400, 600, walls=20, speckle=0.0)
+  _write_pgm(tmp_path / "map.pgm", pixels)
+  _write_image(tmp_path / "map.png", pixels)
+  monkeypatch.setattr(io, "STRIP_PIXELS", 10 * 600)
+  strip_and_grid = 10 * 600 * io.STRIP_BYTES_PER_PIXEL + 40 * 60 * io.GRID_BYTES_PER_CELL
+  # Room for a strip and the 60 x 40 grid, not for the 600 x 400 decoded PNG (1 byte a pixel).
+  monkeypatch.setattr(io, "_available_bytes", lambda: int((strip_and_grid + 200_000) / 0.8))
+  pgm = load_map(_write_yaml(tmp_path / "pgm.yaml", image="map.pgm"), res=1.0)
+  np.testing.assert_array_equal(pgm.occupied, _expected_grid(pixels, 0.1, 1.0))
+  with pytest.raises(MapError, match=r"600 x 400 pixels .*decoded whole \(0.0 GiB: only binary "
+                     r"PGM is read in strips\); reading it into a 60 x 40 grid takes about"):
+    load_map(_write_yaml(tmp_path / "png.yaml", image="map.png"), res=1.0)
+  with pytest.raises(MapError, match=r"read in strips of rows; reading it into a 600 x 400 grid"):
+    load_map(_write_yaml(tmp_path / "pgm.yaml", image="map.pgm"))
+
+
+def test_binary_pgm_header_with_comments_reads_as_pillow_reads_it(tmp_path):
+  pixels = _map_pixels(np.random.default_rng(5), 6, 7, walls=2, speckle=0.2)
+  header = b"P5 # made by hand\n7\t# width\n\n6\r255\n"
+  (tmp_path / "map.pgm").write_bytes(header + pixels.tobytes())
+  np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "map.pgm")), pixels)
+  np.testing.assert_array_equal(load_map(_write_yaml(tmp_path / "map.yaml")).occupied,
+                                _expected_grid(pixels, 0.1, 0.1))
