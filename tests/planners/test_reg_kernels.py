@@ -148,3 +148,50 @@ def test_dilate_matches_scipy_maximum_filter():
   for cells in (0, 1, 4):
     expected = ndimage.maximum_filter(mask, size=2 * cells + 1, mode="constant", cval=False)
     np.testing.assert_array_equal(np.asarray(K.dilate(jnp.asarray(mask), cells)), expected)
+
+
+@EAGER_AND_JIT
+def test_shadow_bins_match_a_python_loop(transform):
+  rng = np.random.default_rng(5)
+  rho = rng.uniform(0.0, 10.0, BINS).astype(np.float32)
+  rho[0], rho[-1] = 9.0, 1.0  # a jump across the seam
+  got = np.asarray(transform(K.shadow_bins)(jnp.asarray(rho), jnp.float32(2.5)))
+  expected = [any(rho[b] - rho[(b + d) % BINS] > 2.5 for d in (-1, 1)) for b in range(BINS)]
+  assert got.tolist() == expected
+  assert got[0] and not got[-1]
+
+
+def test_a_node_beside_a_corner_sees_the_corridor_behind_it_only_as_a_shadow():
+  """An L-shaped corridor: the leg going down from the right end of the horizontal one is seen
+  from a node beside the inner corner only above the line through the corner; below it lies the
+  corner's shadow (unknown). Every ray that passes the corner ends on the leg's far wall inside
+  R, so no ray of the LSR reaches R or unknown space that way: only the shadow edge beside the
+  corner is free boundary in that direction."""
+  h = w = 40
+  classes = np.full((h, w), K.OCCUPIED, np.int32)
+  classes[20:28, 2:31] = K.FREE  # the horizontal corridor, rows 20-27
+  classes[20:40, 23:31] = K.FREE  # the leg, columns 23-30, down to the grid's edge
+  node = np.array([20.5, 26.5])
+  corner = np.array([23.0, 28.0])  # the inner corner (u, v)
+  v, u = np.mgrid[0:h, 0:w].astype(float)
+  to_corner = corner - node
+  # Unknown: the leg's cells wholly beyond the line from the node through the corner.
+  below = np.ones((h, w), bool)
+  for du, dv in ((0, 0), (1, 0), (0, 1), (1, 1)):
+    below &= (u + du - node[0]) * to_corner[1] - (v + dv - node[1]) * to_corner[0] < 0
+  classes[(v >= 28) & (u >= 23) & (u < 31) & below] = K.UNKNOWN
+  rays = K.lsr_rays(jnp.asarray(classes), jnp.asarray(node, jnp.float32), 16.0, 24, BINS)
+  obstacle, rho = np.asarray(rays.obstacle), np.asarray(rays.rho)
+  angles = np.asarray(K.bin_angles(BINS))
+  toward_leg = (angles > 0) & (angles < math.pi / 2)
+  assert obstacle[toward_leg].all()  # the rule "free = reaches R or unknown" sees no arc there
+  shadow = np.asarray(K.shadow_bins(rays.rho, 0.5 / 0.1))
+  # The shadow bin is the first ray that passes the corner: the largest angle below the corner's.
+  corner_angle = math.atan2(to_corner[1], to_corner[0])
+  passing = np.nonzero(toward_leg & (angles < corner_angle))[0]
+  first = passing[np.argmax(angles[passing])]
+  assert shadow[first] and rho[first] > 10.0 and rho[first + 1] < 5.0
+  # Its ray ends on the far wall next to the unknown shadow.
+  end = node + rho[first] * np.array([math.cos(angles[first]), math.sin(angles[first])])
+  row, col = int(end[1]), int(end[0])
+  assert (classes[row - 1:row + 2, col - 2:col + 1] == K.UNKNOWN).any()
