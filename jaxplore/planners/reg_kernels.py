@@ -109,6 +109,15 @@ def shadow_bins(rho, jump):
   return rho - shorter > jump
 
 
+def shadow_midpoints(centre, rho):
+  """f32[B, 2]: the middle of each bin's edge to its shorter neighbour's ray end, the edge that
+  is a shadow edge when :func:`shadow_bins` holds."""
+  ends = boundary_points(centre, rho)
+  before, after = jnp.roll(ends, 1, axis=0), jnp.roll(ends, -1, axis=0)
+  shorter = jnp.where((jnp.roll(rho, 1) <= jnp.roll(rho, -1))[:, None], before, after)
+  return 0.5 * (ends + shorter)
+
+
 def dilate(mask, cells: int):
   """bool[H, W]: cells with a set cell of ``mask`` within ``cells`` rows and columns (a square
   neighbourhood of side 2·cells + 1; outside the grid counts as unset)."""
