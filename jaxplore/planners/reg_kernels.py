@@ -97,9 +97,9 @@ def shadow_bins(rho, jump):
   neighbour's ``ρ[b ± 1]`` by more than ``jump``, the polygon's edge between their ends runs
   radially through free space, along the shadow of the obstacle the shorter ray stops on, with
   unseen space beside it (the part of a corridor behind a corner, the sides of a corridor seen
-  through a door). That edge is free boundary of the LSR (Toriz & Sánchez's free frontier: the
-  part of the LSR's boundary that is not an obstacle), though the ray of bin ``b`` itself ends
-  on an obstacle; the bin to step along toward it is the longer one, ``b``.
+  through a door). That edge is boundary of the LSR that no obstacle bounds, as its free
+  frontier segments are (Toriz & Sánchez do not define them ray by ray), though the ray of bin
+  ``b`` itself ends on an obstacle; the bin to step along toward it is the longer one, ``b``.
 
   Args:
     rho: f32[B] the rays' lengths (any unit).
