@@ -90,6 +90,34 @@ def lsr_rays(classes, uv, radius, n_cross: int, bins: int) -> Rays:
   return Rays(rho=jnp.minimum(t_stop, radius).astype(jnp.float32), obstacle=obstacle)
 
 
+def shadow_bins(rho, jump):
+  """bool[B]: bins on the far side of a depth jump of the LSR's boundary (a sensor shadow).
+
+  The LSR is the star-shaped polygon of the rays' ends; where a ray ``ρ[b]`` is longer than a
+  neighbour's ``ρ[b ± 1]`` by more than ``jump``, the polygon's edge between their ends runs
+  radially through free space, along the shadow of the obstacle the shorter ray stops on, with
+  unseen space beside it (the part of a corridor behind a corner, the sides of a corridor seen
+  through a door). That edge is boundary of the LSR that no obstacle bounds, as its free
+  frontier segments are (Toriz & Sánchez do not define them ray by ray), though the ray of bin
+  ``b`` itself ends on an obstacle; the bin to step along toward it is the longer one, ``b``.
+
+  Args:
+    rho: f32[B] the rays' lengths (any unit).
+    jump: the least depth difference that makes a shadow edge (same unit as ``rho``).
+  """
+  shorter = jnp.minimum(jnp.roll(rho, 1), jnp.roll(rho, -1))
+  return rho - shorter > jump
+
+
+def shadow_midpoints(centre, rho):
+  """f32[B, 2]: the middle of each bin's edge to its shorter neighbour's ray end, the edge that
+  is a shadow edge when :func:`shadow_bins` holds."""
+  ends = boundary_points(centre, rho)
+  before, after = jnp.roll(ends, 1, axis=0), jnp.roll(ends, -1, axis=0)
+  shorter = jnp.where((jnp.roll(rho, 1) <= jnp.roll(rho, -1))[:, None], before, after)
+  return 0.5 * (ends + shorter)
+
+
 def dilate(mask, cells: int):
   """bool[H, W]: cells with a set cell of ``mask`` within ``cells`` rows and columns (a square
   neighbourhood of side 2·cells + 1; outside the grid counts as unset)."""

@@ -1,7 +1,7 @@
 """The REG family in the engine: whole episodes on small corridor worlds, and the random draws.
 
-The two worlds (a T-junction and a loop) have the same shape, so one compiled rollout serves
-both.
+The three worlds (a T-junction, a loop, and a room whose door opens on a corridor) have the same
+shape, so one compiled rollout serves them all.
 """
 
 import math
@@ -22,20 +22,25 @@ SIDE = 12.8  # m: 64 x 64 cells
 TEE = [(0.6, 9.4, 12.2, 11.4), (5.4, 0.6, 7.4, 9.4)]
 LOOP = [(0.6, 0.6, 12.2, 2.6), (0.6, 10.2, 12.2, 12.2), (0.6, 0.6, 2.6, 12.2),
         (10.2, 0.6, 12.2, 12.2)]
-STARTS = {"tee": (6.4, 1.6, 0.0), "loop": (1.6, 1.6, 0.0)}
+# A 5 m x 3 m room, a 1.2 m door in its 0.2 m top wall, a 2 m corridor across: from the start,
+# 1.4 m below the door, every ray through the door ends on the corridor's far wall within R, so
+# the corridor is seen only between the shadows of the door's jambs.
+ROOM = [(0.6, 0.6, 5.6, 3.6), (2.6, 3.6, 3.8, 3.8), (0.6, 3.8, 12.2, 5.8)]
+STARTS = {"tee": (6.4, 1.6, 0.0), "loop": (1.6, 1.6, 0.0), "room": (3.2, 2.2, math.pi / 2)}
 MAX_STEPS = 480
 
 
 @pytest.fixture(scope="module")
 def episodes():
-  """ereg on the T-junction and the loop: two robots each, with different keys and the same
-  start, no pose noise; coverage never ends an episode (only the planner does).
+  """ereg on the T-junction, the loop and the room: two robots each, with different keys and the
+  same start, no pose noise; coverage never ends an episode (only the planner does).
 
   One robot at a time, the engine's single-robot planning round and motion step in a scan (a
   batch would compile the planner once per planning chunk size), 120 steps per call.
   """
   worlds = {"tee": generate.floor_plan(SIDE, SIDE, RES, TEE, name="tee"),
-            "loop": generate.floor_plan(SIDE, SIDE, RES, LOOP, name="loop")}
+            "loop": generate.floor_plan(SIDE, SIDE, RES, LOOP, name="loop"),
+            "room": generate.floor_plan(SIDE, SIDE, RES, ROOM, name="room")}
   _, config, params, _ = runner.prepare(world=worlds["tee"], planner="ereg", robots=1,
                                         preset="toriz", max_steps=MAX_STEPS,
                                         params={"coverage_goal": 1.5}, plan_window=0)
@@ -69,7 +74,7 @@ def episodes():
   return out
 
 
-@pytest.mark.parametrize("name", ["tee", "loop"])
+@pytest.mark.parametrize("name", ["tee", "loop", "room"])
 def test_ereg_covers_the_world_and_ends_back_at_node_0(episodes, name):
   grid, world, runs = episodes[name]
   for state, _ in runs:
@@ -94,7 +99,7 @@ def test_ereg_covers_the_world_and_ends_back_at_node_0(episodes, name):
     assert reached == set(range(count))
 
 
-@pytest.mark.parametrize("name", ["tee", "loop"])
+@pytest.mark.parametrize("name", ["tee", "loop", "room"])
 def test_ereg_is_deterministic(episodes, name):
   """Different keys, same start, no noise: Extended REG draws nothing, so the runs are equal."""
   _, _, ((state_0, records_0), (state_1, records_1)) = episodes[name]

@@ -148,3 +148,69 @@ def test_dilate_matches_scipy_maximum_filter():
   for cells in (0, 1, 4):
     expected = ndimage.maximum_filter(mask, size=2 * cells + 1, mode="constant", cval=False)
     np.testing.assert_array_equal(np.asarray(K.dilate(jnp.asarray(mask), cells)), expected)
+
+
+@EAGER_AND_JIT
+def test_shadow_bins_and_midpoints_match_a_python_loop(transform):
+  rng = np.random.default_rng(5)
+  rho = rng.uniform(0.0, 10.0, BINS).astype(np.float32)
+  rho[0], rho[-1] = 9.0, 1.0  # a jump across the seam
+  got = np.asarray(transform(K.shadow_bins)(jnp.asarray(rho), jnp.float32(2.5)))
+  expected = [any(rho[b] - rho[(b + d) % BINS] > 2.5 for d in (-1, 1)) for b in range(BINS)]
+  assert got.tolist() == expected
+  assert got[0] and not got[-1]
+  centre = np.array([3.0, -2.0], np.float32)
+  middles = np.asarray(transform(K.shadow_midpoints)(jnp.asarray(centre), jnp.asarray(rho)))
+  width = 2 * math.pi / BINS
+  end = lambda b: centre + rho[b] * np.array([math.cos(-math.pi + (b + 0.5) * width),
+                                              math.sin(-math.pi + (b + 0.5) * width)])
+  for b in range(BINS):
+    shorter = (b - 1) % BINS if rho[(b - 1) % BINS] <= rho[(b + 1) % BINS] else (b + 1) % BINS
+    np.testing.assert_allclose(middles[b], 0.5 * (end(b) + end(shorter)), atol=1e-4)
+
+
+def test_a_node_beside_a_corner_sees_the_corridor_behind_it_only_as_a_shadow():
+  """An L-shaped corridor: the leg going down from the right end of the horizontal one is seen
+  from a node beside the inner corner only above the line through the corner; below it lies the
+  corner's shadow (unknown). Every ray that passes the corner ends on the leg's far wall inside
+  R (20 cells), so no ray of the LSR reaches R or unknown space that way: only the shadow edge
+  beside the corner is free boundary in that direction."""
+  h = w = 40
+  classes = np.full((h, w), K.OCCUPIED, np.int32)
+  classes[20:28, 2:31] = K.FREE  # the horizontal corridor, rows 20-27
+  classes[20:40, 23:31] = K.FREE  # the leg, columns 23-30, down to the grid's edge
+  node = np.array([20.5, 26.5])
+  corner = np.array([23.0, 28.0])  # the inner corner (u, v)
+  v, u = np.mgrid[0:h, 0:w].astype(float)
+  to_corner = corner - node
+  # Unknown: the leg's cells wholly beyond the line from the node through the corner.
+  below = np.ones((h, w), bool)
+  for du, dv in ((0, 0), (1, 0), (0, 1), (1, 1)):
+    below &= (u + du - node[0]) * to_corner[1] - (v + dv - node[1]) * to_corner[0] < 0
+  classes[(v >= 28) & (u >= 23) & (u < 31) & below] = K.UNKNOWN
+  rays = K.lsr_rays(jnp.asarray(classes), jnp.asarray(node, jnp.float32), 20.0, 24, BINS)
+  obstacle, rho = np.asarray(rays.obstacle), np.asarray(rays.rho)
+  angles = np.asarray(K.bin_angles(BINS))
+  toward_leg = (angles > 0) & (angles < math.pi / 2)
+  assert obstacle[toward_leg].all()  # the rule "free = reaches R or unknown" sees no arc there
+  shadow = np.asarray(K.shadow_bins(rays.rho, 0.5 / 0.1))
+  # The shadow bin is the first ray that passes the corner: the largest angle below the corner's.
+  corner_angle = math.atan2(to_corner[1], to_corner[0])
+  passing = np.nonzero(toward_leg & (angles < corner_angle))[0]
+  first = passing[np.argmax(angles[passing])]
+  assert shadow[first] and rho[first] > 10.0 and rho[first + 1] < 5.0
+  # Its ray ends on the far wall next to the unknown shadow.
+  end = node + rho[first] * np.array([math.cos(angles[first]), math.sin(angles[first])])
+  row, col = int(end[1]), int(end[0])
+  assert (classes[row - 1:row + 2, col - 2:col + 1] == K.UNKNOWN).any()
+  # The middle of its shadow edge lies by the frontier (free cells beside unknown ones); the
+  # other depth jumps, rays grazing the bottom wall toward the left, have their edges' middles on
+  # that wall, away from it.
+  from scipy import ndimage
+  frontier = (classes == K.FREE) & ndimage.binary_dilation(classes == K.UNKNOWN)
+  near = ndimage.maximum_filter(frontier, size=2 * 3 + 1, mode="constant", cval=False)
+  middles = np.asarray(K.shadow_midpoints(jnp.asarray(node, jnp.float32), rays.rho))
+  at = lambda p: near[int(p[1]), int(p[0])]
+  grazing = np.nonzero(shadow & obstacle & (angles > math.pi / 2))[0]
+  assert at(middles[first]) and len(grazing) >= 1
+  assert not any(at(middles[b]) for b in grazing)
