@@ -253,20 +253,30 @@ def record(world: World, state: State) -> Record:
 
 def touched_cells(config: SimConfig, world: World, params: Params, xy):
   """The cells around ``xy`` and which of them the robot's disc there would touch: occupied in
-  the truth (outside the map counts as occupied) with their centre closer than ``r_robot``.
+  the truth (outside the map counts as occupied) with their centre within ``r_robot``.
 
-  Centre distances, as the planner's inflation measures them (:func:`mapping.inflate`), so a
-  path the belief inflates correctly never collides. Returns (i32[K, 2] cells, bool[K]).
+  Centre distances with the planner's inflation's bound and tolerance (:func:`mapping.inflate`:
+  within, not only closer than), so a path the belief inflates correctly never collides, and a
+  cell the robot can drive to is one its planner can still plan from once the walls around it
+  are mapped (with ``r_robot`` a whole number of cells, a strict bound would let the disc into
+  cells the inflation closes: a robot as wide as two cells would pass a two-cell gap and be
+  trapped behind it). Returns (i32[K, 2] cells, bool[K]).
   """
   k = config.max_inflation_cells + 1
   span = jnp.arange(-k, k + 1)
   offsets = jnp.stack(jnp.meshgrid(span, span, indexing="ij"), axis=-1).reshape(-1, 2)
-  cells = cell_of(xy, world.origin, config.res)[None, :] + offsets
+  at = to_cells(xy, world.origin, config.res)
+  home = jnp.floor(at).astype(jnp.int32)
+  cells = home[None, :] + offsets
   occupied = world.occupied.at[cells[:, 0], cells[:, 1]].get(
       mode="fill", fill_value=True, wrap_negative_indices=False)
-  centres = cell_centre(cells.T, world.origin, config.res)
-  distance = jnp.sqrt(jnp.sum((centres - xy[:, None]) ** 2, axis=0))
-  return cells, occupied & (distance < params.r_robot)
+  # In cells, from the offsets (metres far from the origin lose the last bits that decide a
+  # tie), with mapping.inflate's test: di^2 + dj^2 <= (r / res)^2 + 1e-6.
+  inside = at - home - 0.5  # xy from its cell's centre: a waypoint's is 0 up to float32 error
+  inside = jnp.where(jnp.abs(inside) < 1e-3, 0.0, inside)
+  squared = jnp.sum((offsets - inside[None, :]) ** 2, axis=1)
+  radius = params.r_robot / config.res
+  return cells, occupied & (squared <= radius * radius + 1e-6)
 
 
 def _in_belief_frame(config: SimConfig, world: World, state: State, cells):

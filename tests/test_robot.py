@@ -36,7 +36,7 @@ def test_touched_cells_are_the_occupied_cells_within_the_radius(transform):
     framed = np.pad(grid.occupied, 5, constant_values=True)
     rows, cols = np.nonzero(framed)
     centres = np.stack([(cols - 5 + 0.5) * 0.1, (rows - 5 + 0.5) * 0.1], axis=1)
-    near = np.linalg.norm(centres - xy, axis=1) < R_ROBOT
+    near = np.linalg.norm(centres - xy, axis=1) <= R_ROBOT
     expected = {(r - 5, c - 5) for r, c in zip(rows[near], cols[near])}
     assert {tuple(c) for c in cells[touching]} == expected
 
@@ -74,6 +74,63 @@ def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
   assert believed_occupied[:, 15].any()  # the wall it touched is in its belief now
   h = np.asarray(mapping.entropy_of_logodds(state.logodds)).sum()
   np.testing.assert_allclose(float(state.entropy), h, rtol=1e-4)
+
+
+@EAGER_AND_JIT
+def test_a_robot_as_wide_as_whole_cells_stands_only_where_the_inflation_lets_it(transform):
+  """With ``r_robot`` a whole number of cells, a wall cell centre exactly ``r_robot`` away
+  touches the disc, as the planner's inflation counts it: the cells where the disc touches no
+  wall are those whose distance to the nearest occupied centre (SciPy's exact Euclidean
+  distance transform, outside the map occupied) exceeds the radius."""
+  from scipy import ndimage
+  rng = np.random.default_rng(3)
+  occupied = rng.random((14, 16)) < 0.12
+  grid = GridMap(occupied, 0.2, (0.0, 0.0), "speckle")
+  config = config_for(grid.shape, grid.res, make_params(res=0.2, r_robot=0.4), max_steps=10)
+  world = sim.make_world(grid, 0.2)
+  clearance = ndimage.distance_transform_edt(np.pad(~occupied, 1))[1:-1, 1:-1]
+  free_cells = np.argwhere(~occupied)
+  for r_robot in (0.2, 0.4):
+    params = make_params(res=0.2, r_robot=r_robot)
+    touch = transform(jax.vmap(lambda xy: jnp.any(
+        robot.touched_cells(config, world, params, xy)[1])))
+    centres = jnp.asarray((free_cells[:, ::-1] + 0.5) * 0.2, jnp.float32)
+    touches = np.asarray(touch(centres))
+    expected = clearance[free_cells[:, 0], free_cells[:, 1]] <= r_robot / 0.2 + 1e-9
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(touches, expected)
+
+
+def test_a_robot_two_cells_wide_does_not_enter_a_two_cell_gap():
+  """r_robot = res = 0.2 m (the li2020 preset at 0.2 m cells): the gap in the wall is two cells
+  (0.4 m) wide, which the planner's inflation closes once its walls are mapped. With the walls
+  unmapped the path runs through it; the robot must collide at the gap's first cell (its disc
+  reaches the jambs' centres), learn them, and stay on the near side, from where it can still
+  plan (it is not left inside an inflated neck it cannot plan out of)."""
+  grid = box_world(12, 20, res=0.2, walls=((0, 5, 10, 11), (7, 12, 10, 11)))
+  params = make_params(res=0.2, r_robot=0.2, r_max=0.3, fov=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=40, n_beams=4, path_capacity=24)
+  world = sim.make_world(grid, 0.2, (0.5, 1.1))
+  state = sim.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([0.5, 1.1, 0.0]))
+  path = np.stack([np.full(17, 5), np.arange(2, 19)], axis=1).astype(np.int32)
+  waypoints = np.concatenate([path, np.repeat(path[-1:], 7, axis=0)])
+  believed_free = jnp.full(grid.shape, -3.0, jnp.float32)
+  state = state.replace(logodds=believed_free,
+                        entropy=jnp.sum(mapping.entropy_of_logodds(believed_free)),
+                        waypoints=jnp.asarray(waypoints), path_len=jnp.int32(17),
+                        path_idx=jnp.int32(1), look_at=jnp.asarray(path[-1]))
+  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  occupied_centres = np.argwhere(grid.occupied)[:, ::-1] * 0.2 + 0.1
+  for _ in range(40):
+    state, _ = step(state)
+    xy = np.asarray(state.pose[:2])
+    assert np.linalg.norm(occupied_centres - xy, axis=1).min() > 0.2 + 1e-3
+  assert int(state.collisions) >= 1
+  assert float(state.pose[0]) < 2.0  # the wall's face is at x = 2.0 m: it stayed before it
+  believed_occupied = np.asarray(state.logodds) > float(mapping.logit(params.p_occ))
+  assert believed_occupied[4, 10]  # the jamb it touched
+  view = sim.belief_view(config, params, state, sim.robot_view(config, world, state).cell)
+  assert np.asarray(view.traversable)[tuple(sim.robot_view(config, world, state).cell)]
 
 
 def test_starts_count_the_map_edge_as_a_wall():
