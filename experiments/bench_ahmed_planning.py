@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -96,7 +97,7 @@ def main(argv=None):
           f"{graph_loops.mean():.0f} loop closures on average; loop capacity {args.graph_loops}), "
           f"every robot planning (median of {args.repeats} timed rounds); "
           f"{time.strftime('%Y-%m-%dT%H:%M:%S')}, load average at the end {load}; command: "
-          f"python experiments/bench_ahmed_planning.py {' '.join(argv or [])}\n\n"
+          f"python experiments/bench_ahmed_planning.py {' '.join(sys.argv[1:] if argv is None else argv)}\n\n"
           + "\n".join(table) + "\n")
   (HERE / "results").mkdir(exist_ok=True)
   (HERE / "results" / "bench_ahmed_planning.md").write_text(text)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -95,7 +96,7 @@ def main(argv=None):
   text = (f"Planning time, {args.robots} robots on `{args.world}`, {n_dev} device(s), same belief states, "
           f"every robot planning (median of {args.repeats} timed rounds); {time.strftime('%Y-%m-%dT%H:%M:%S')}, "
           f"load average at the end {load}; command: python experiments/bench_planning.py "
-          f"{' '.join(argv or [])}\n\n" + "\n".join(table) + "\n")
+          f"{' '.join(sys.argv[1:] if argv is None else argv)}\n\n" + "\n".join(table) + "\n")
   (HERE / "results").mkdir(exist_ok=True)
   (HERE / "results" / "bench_planning.md").write_text(text)
   print(text)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -102,7 +103,7 @@ def main(argv=None):
           f"`ereg`: {nodes.mean():.1f} graph nodes per robot on average, coverage "
           f"{coverage.mean():.2f}), every robot planning (median of {args.repeats} timed rounds); "
           f"{time.strftime('%Y-%m-%dT%H:%M:%S')}, load average at the end {load}; command: "
-          f"python experiments/bench_reg_planning.py {' '.join(argv or [])}\n\n"
+          f"python experiments/bench_reg_planning.py {' '.join(sys.argv[1:] if argv is None else argv)}\n\n"
           + "\n".join(table) + "\n")
   (HERE / "results").mkdir(exist_ok=True)
   (HERE / "results" / "bench_reg_planning.md").write_text(text)

@@ -31,6 +31,7 @@ rerun it); the tables go to ``experiments/results/toriz_tables.md`` and the box 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -232,7 +233,7 @@ def main(argv=None):
           f"pose noise {'off' if args.no_noise else 'on'}, "
           f"{args.start} starts (seed i = the same start for every method), `toriz` preset, "
           f"step budget {args.max_steps}; mean ± sample std [min, max]. "
-          f"Command: python experiments/toriz_tables.py {' '.join(argv or [])}\n\n"
+          f"Command: python experiments/toriz_tables.py {' '.join(sys.argv[1:] if argv is None else argv)}\n\n"
           + tables(episodes))
   (RESULTS / f"{tag}_tables.md").write_text(text)
   boxplot(episodes, RESULTS / f"{tag}_boxplot.png")
