@@ -415,7 +415,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
 
   With a ``preset`` and no ``r_e`` among the overrides, R_e is derived from the lidar by Eq 5-6
   (:func:`effective_radius`, one beam per cell unless ``dpi_min`` is given; the widest ``fov``
-  of ``params``); without a preset it is ``SimConfig.r_e``'s default unless given.
+  of ``params``), at most the lidar's range ``r_max``; without a preset it is ``SimConfig.r_e``'s default unless given.
   """
   dpi_min = overrides.pop("dpi_min", None)
   limit = max(math.hypot(*world_shape) * res, LENGTH_LIMIT_M)
@@ -426,8 +426,10 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
   check_length("alpha", params.alpha, math.inf, "")
   if preset is not None and "r_e" not in overrides:
     n_beams = int(overrides.get("n_beams", PRESETS[preset].n_beams))
-    overrides["r_e"] = effective_radius(float(res), float(np.max(np.asarray(params.fov))), n_beams,
-                                        dpi_min)
+    # A scan sees nothing beyond r_max, however dense its beams would be there (coarse grids).
+    overrides["r_e"] = min(effective_radius(float(res), float(np.max(np.asarray(params.fov))),
+                                            n_beams, dpi_min),
+                           float(np.max(np.asarray(params.r_max))))
     check_length("r_e", overrides["r_e"], limit, "the gain kernels",
                  "R_e derived from fov, the beam count and dpi_min by Eq 5-6,")
   elif "r_e" in overrides:

@@ -43,6 +43,12 @@ def test_config_for_derives_r_e_from_the_preset_unless_given():
   derived = config_for((50, 60), 0.1, params, preset="li2020")
   assert derived.r_e == pytest.approx(5.698, abs=1e-3)
   assert derived.max_update_radius_cells == math.ceil(1.5 * derived.r_e / 0.1 - 1e-6)
+  # On a coarse grid Eq 6 would reach past the lidar: R_e stops at its range.
+  assert effective_radius(0.5, math.radians(190), 190) > float(params.r_max)
+  coarse = config_for((50, 60), 0.5, make_params("li2020", res=0.5), preset="li2020")
+  assert coarse.r_e == pytest.approx(float(params.r_max))
+  assert config_for((50, 60), 0.1, params, preset="li2020", dpi_min=1e-30).r_e == pytest.approx(
+      float(params.r_max))
   assert config_for((50, 60), 0.1, params, preset="li2020", r_e=0.75).r_e == 0.75
   assert config_for((50, 60), 0.1, params, preset="li2020", dpi_min=20.0).r_e == pytest.approx(2.849, abs=1e-3)
   assert config_for((50, 60), 0.1, params).r_e == SimConfig.r_e  # no preset: the default
@@ -77,8 +83,6 @@ def test_sim_config_resolves_auto_on_construction_and_refuses_unknown_strategies
     ({"alpha": float("nan")}, {}, "alpha is NaN or infinite"),
     ({}, {"r_e": float("nan")}, "r_e is NaN or infinite"),
     ({}, {"r_e": 1e6}, "r_e: r_e = 1e[+]06 m"),
-    ({}, {"dpi_min": 1e-30}, "r_e: R_e derived from fov"),
-    ({"fov": 1e-30}, {}, "r_e: R_e derived from fov"),
 ])
 def test_lengths_that_size_buffers_are_refused_by_name_before_any_size(overrides, static, match):
   params = make_params("li2020", res=0.1, **overrides)
