@@ -103,6 +103,30 @@ def inflate(mask, radius_cells, max_cells: int):
   return out
 
 
+def distance_sq_within(mask, max_cells: int):
+  """Squared distance (in cells², centre to centre) from each cell to the nearest set cell of
+  ``mask`` within ``max_cells`` (static); ``max_cells² + 1`` where none is that close. The grid
+  outside counts as unset.
+
+  ``distance_sq_within(mask, m) <= r²`` is :func:`inflate` ``(mask, r, m)`` (up to its 1e-6
+  tolerance); the distance itself orders cells of the inflated zone by clearance.
+  """
+  h, w = mask.shape
+  m = max_cells
+  far = jnp.int32(jnp.iinfo(jnp.int32).max)
+  out = jnp.where(mask, jnp.int32(0), far)
+  if m == 0:
+    return out
+  framed = jnp.pad(mask, m, constant_values=False)
+  for di in range(-m, m + 1):
+    for dj in range(-m, m + 1):
+      if (di, dj) == (0, 0) or di * di + dj * dj > m * m:
+        continue
+      view = jax.lax.slice(framed, (m + di, m + dj), (m + di + h, m + dj + w))
+      out = jnp.minimum(out, jnp.where(view, jnp.int32(di * di + dj * dj), far))
+  return out
+
+
 def frontier(free, unknown, occupied):
   """Belief-free cells with an unknown 8-neighbour (Yamauchi 1997).
 

@@ -34,17 +34,32 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
                 ) -> planners_base.BeliefView:
   """The planner's view of one robot's belief (masks computed once per planning round).
 
-  Traversable cells are free cells clear of believed walls by the robot radius, plus the free
-  cells of the inflated zone connected to the robot within ``max_inflation_cells + 1`` steps: a
-  robot that newly mapped walls left inside the inflated zone can still drive out of it.
+  Traversable cells are free cells clear of believed walls by the robot radius, plus an escape
+  route: the free cells of the inflated zone that the robot reaches within
+  ``max_inflation_cells + 1`` steps without ever stepping closer to a believed wall, so a robot
+  that newly mapped walls inside its radius can drive out of the inflated zone but never deeper
+  into it (with any escape cell traversable, goals near walls pulled the robot a few cells
+  further into a narrowing notch at each plan until it stood where no plan led out).
   """
   free, occupied, unknown = mapping.classify(state.logodds, params)
-  inflated = mapping.inflate(occupied, params.r_robot / config.res, config.max_inflation_cells)
+  wall_distance_sq = mapping.distance_sq_within(occupied, config.max_inflation_cells)
+  radius = params.r_robot / config.res
+  inflated = wall_distance_sq.astype(jnp.float32) <= radius * radius + 1e-6
   escape_zone = free & inflated
   escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(True, mode="drop") & escape_zone
+  framed_distance = mapping.frame(wall_distance_sq, -1)
+
+  def widen(_, escape):
+    # A cell joins from a neighbour on the route that is no farther from the walls than it is.
+    framed = mapping.frame(escape, False)
+    joins = jnp.zeros(free.shape, bool)
+    for di, dj in mapping.NEIGHBOURS_8:
+      joins = joins | (mapping.shifted(framed, di, dj)
+                       & (mapping.shifted(framed_distance, di, dj) <= wall_distance_sq))
+    return escape | (joins & escape_zone)
+
   # A loop, not unrolled: XLA would fuse each step into the next one's 8 neighbour reads.
-  escape = jax.lax.fori_loop(0, config.max_inflation_cells + 1,
-                             lambda _, e: e | (mapping.any_neighbour(e) & escape_zone), escape)
+  escape = jax.lax.fori_loop(0, config.max_inflation_cells + 1, widen, escape)
   return planners_base.BeliefView(
       logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
       unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,

@@ -1,0 +1,120 @@
+"""The planner's view of a belief (planning.belief_view): inflation and the escape route out of
+it, against SciPy's distance transform and a plain breadth-first search."""
+
+from collections import deque
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from conftest import EAGER_AND_JIT, box_world
+from jaxplore import mapping, sim
+from jaxplore.config import config_for, make_params
+from jaxplore.planners import base
+
+FREE, OCCUPIED, UNKNOWN = -3.0, 3.0, 0.0
+
+
+def escape_oracle(free, occupied, start, radius, steps):
+  """Free cells within ``radius`` of a believed wall that a walk of at most ``steps`` 8-connected
+  steps from ``start`` reaches, every step onto a cell no closer to the walls (SciPy distances)."""
+  distance = ndimage.distance_transform_edt(~occupied)
+  zone = free & (distance <= radius + 1e-6)
+  reached = np.zeros_like(zone)
+  if not zone[start]:
+    return reached
+  reached[start] = True
+  queue = deque([(start, 0)])
+  while queue:
+    (i, j), depth = queue.popleft()
+    if depth == steps:
+      continue
+    for di in (-1, 0, 1):
+      for dj in (-1, 0, 1):
+        n = (i + di, j + dj)
+        if (0 <= n[0] < zone.shape[0] and 0 <= n[1] < zone.shape[1] and zone[n] and not reached[n]
+            and distance[n] >= distance[i, j] - 1e-9):
+          reached[n] = True
+          queue.append((n, depth + 1))
+  return reached
+
+
+def belief_state(config, world, params, logodds, start_xy):
+  state = sim.reset(config, world, params, jax.random.PRNGKey(0),
+                    jnp.asarray([start_xy[0], start_xy[1], 0.0]))
+  logodds = jnp.asarray(logodds, jnp.float32)
+  return state.replace(logodds=logodds, entropy=jnp.sum(mapping.entropy_of_logodds(logodds)))
+
+
+@EAGER_AND_JIT
+def test_distance_sq_within_is_scipys_distance_and_gives_the_inflation(transform):
+  rng = np.random.default_rng(3)
+  mask = rng.random((19, 26)) < 0.07
+  ours = np.asarray(transform(lambda m: mapping.distance_sq_within(m, 3))(jnp.asarray(mask)))
+  reference = np.rint(ndimage.distance_transform_edt(~mask) ** 2)
+  near = reference <= 9
+  np.testing.assert_array_equal(ours[near], reference[near])
+  assert np.all(ours[~near] > 9)
+  for radius in (0.0, 1.0, 1.5, 2.2, 3.0):
+    np.testing.assert_array_equal(
+        ours <= radius * radius + 1e-6,
+        np.asarray(mapping.inflate(jnp.asarray(mask), jnp.float32(radius), 3)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@EAGER_AND_JIT
+def test_escape_route_never_leads_closer_to_a_wall(transform, seed):
+  # Random believed walls around a robot standing inside their inflation: the traversable cells
+  # are the cells clear of the walls plus exactly the breadth-first oracle's escape route.
+  rng = np.random.default_rng(seed)
+  grid = box_world(24, 24, res=0.1)
+  params = make_params(res=0.1, r_robot=0.3, r_max=0.5)
+  config = config_for(grid.shape, grid.res, params, max_steps=4)
+  world = sim.make_world(grid, 0.3, (1.2, 1.2))
+  occupied = rng.random(grid.shape) < 0.06
+  occupied[10:14, 10:14] = False
+  occupied[10, 11] = True  # a wall 2.2 cells from the robot's cell (12, 12), inside its 3 cells
+  logodds = np.where(occupied, OCCUPIED, FREE)
+  logodds[rng.random(grid.shape) < 0.05] = UNKNOWN
+  state = belief_state(config, world, params, logodds, (1.25, 1.25))
+  cell = jnp.asarray([12, 12], jnp.int32)
+  view = transform(lambda s, c: sim.belief_view(config, params, s, c))(state, cell)
+  free, occupied = np.asarray(view.free), np.asarray(view.occupied)
+  distance = ndimage.distance_transform_edt(~occupied)
+  assert distance[12, 12] <= 3.0  # the robot stands in the inflated zone
+  np.testing.assert_array_equal(np.asarray(view.inflated), distance <= 3.0 + 1e-6)
+  escape = escape_oracle(free, occupied, (12, 12), 3.0, config.max_inflation_cells + 1)
+  assert escape.sum() > 1
+  np.testing.assert_array_equal(np.asarray(view.traversable),
+                                (free & (distance > 3.0 + 1e-6)) | escape)
+
+
+def test_nearest_frontier_does_not_follow_a_notch_deeper_into_the_inflated_zone():
+  # A 1-cell notch in a wall, its end unknown, is the nearest frontier to a robot standing two
+  # cells from the wall (inside its 0.2 m radius). The notch is narrower than the robot: the plan
+  # must not lead into it (each such plan took the robot further into the notch, until no plan
+  # led out), but to the open room's other frontier.
+  grid = box_world(30, 30, res=0.1)
+  params = make_params(res=0.1, r_robot=0.2, r_max=0.5)
+  config = config_for(grid.shape, grid.res, params, max_steps=4, planner="nearest_frontier")
+  world = sim.make_world(grid, 0.2, (1.45, 2.0))
+  logodds = np.full(grid.shape, FREE)
+  logodds[grid.occupied] = OCCUPIED
+  logodds[:10, :] = OCCUPIED
+  logodds[7:10, 14] = FREE  # the notch
+  logodds[6, 14] = UNKNOWN
+  logodds[26:29, 26:29] = UNKNOWN  # the room's far corner
+  state = belief_state(config, world, params, logodds, (1.35, 1.15))
+  robot = sim.robot_view(config, world, state)
+  assert tuple(np.asarray(robot.cell)) == (11, 13)
+  view = sim.belief_view(config, params, state, robot.cell)
+  plan = jax.jit(lambda v, r: base.get_planner("nearest_frontier").plan(
+      sim.planner_context(config), v, r, params, jax.random.PRNGKey(0)))(view, robot)
+  assert bool(plan.valid)
+  distance = ndimage.distance_transform_edt(~np.asarray(view.occupied))
+  path = np.asarray(plan.waypoints)[:int(plan.length)]
+  assert len(path) > 1
+  assert np.all(distance[path[:, 0], path[:, 1]] >= distance[11, 13] - 1e-9)
+  assert np.asarray(plan.goal)[0] >= 25  # the far corner's frontier
