@@ -4,7 +4,8 @@ The engine batches these with ``vmap`` at the edge. One motion step (:func:`step
 the next waypoint (or turn to the look-at cell), unless the robot's disc at that waypoint would
 touch an occupied cell of the truth that its belief does not hold as occupied (a collision: the
 robot stays, its path ends, and the cells it touched become occupied in its belief, as a bumper
-would tell it; walls it already knows are the planner's to avoid, by inflation) -> dead-reckon the estimate and propagate Σ
+would tell it) or, nearer than where it stands, one its belief holds (walls mapped since it
+planned: its path ends and it plans again) -> dead-reckon the estimate and propagate Σ
 (Li et al. 2020, Eq 16-17) -> scan the truth from the true pose -> relocalise if the scan ends on
 enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> update
 Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SLAM pose graph
@@ -251,6 +252,26 @@ def record(world: World, state: State) -> Record:
                 x=state.pose[0], y=state.pose[1], done=state.done, **graph)
 
 
+def _cells_around(config: SimConfig, world: World, xy):
+  """The cells within ``max_inflation_cells + 1`` (Chebyshev) of ``xy``'s cell and their squared
+  centre distances from ``xy`` in cells² (from the offsets: metres far from the origin lose the
+  last bits that decide a tie). Returns (i32[K, 2], f32[K])."""
+  k = config.max_inflation_cells + 1
+  span = jnp.arange(-k, k + 1)
+  offsets = jnp.stack(jnp.meshgrid(span, span, indexing="ij"), axis=-1).reshape(-1, 2)
+  at = to_cells(xy, world.origin, config.res)
+  home = jnp.floor(at).astype(jnp.int32)
+  inside = at - home - 0.5  # xy from its cell's centre: a waypoint's is 0 up to float32 error
+  inside = jnp.where(jnp.abs(inside) < 1e-3, 0.0, inside)
+  return home[None, :] + offsets, jnp.sum((offsets - inside[None, :]) ** 2, axis=1)
+
+
+def _within_radius(config: SimConfig, params: Params, squared):
+  """:func:`mapping.inflate`'s test, in cells: d² <= (r / res)² + 1e-6."""
+  radius = params.r_robot / config.res
+  return squared <= radius * radius + 1e-6
+
+
 def touched_cells(config: SimConfig, world: World, params: Params, xy):
   """The cells around ``xy`` and which of them the robot's disc there would touch: occupied in
   the truth (outside the map counts as occupied) with their centre within ``r_robot``.
@@ -262,21 +283,21 @@ def touched_cells(config: SimConfig, world: World, params: Params, xy):
   cells the inflation closes: a robot as wide as two cells would pass a two-cell gap and be
   trapped behind it). Returns (i32[K, 2] cells, bool[K]).
   """
-  k = config.max_inflation_cells + 1
-  span = jnp.arange(-k, k + 1)
-  offsets = jnp.stack(jnp.meshgrid(span, span, indexing="ij"), axis=-1).reshape(-1, 2)
-  at = to_cells(xy, world.origin, config.res)
-  home = jnp.floor(at).astype(jnp.int32)
-  cells = home[None, :] + offsets
+  cells, squared = _cells_around(config, world, xy)
   occupied = world.occupied.at[cells[:, 0], cells[:, 1]].get(
       mode="fill", fill_value=True, wrap_negative_indices=False)
-  # In cells, from the offsets (metres far from the origin lose the last bits that decide a
-  # tie), with mapping.inflate's test: di^2 + dj^2 <= (r / res)^2 + 1e-6.
-  inside = at - home - 0.5  # xy from its cell's centre: a waypoint's is 0 up to float32 error
-  inside = jnp.where(jnp.abs(inside) < 1e-3, 0.0, inside)
-  squared = jnp.sum((offsets - inside[None, :]) ** 2, axis=1)
-  radius = params.r_robot / config.res
-  return cells, occupied & (squared <= radius * radius + 1e-6)
+  return cells, occupied & _within_radius(config, params, squared)
+
+
+def believed_wall_distance_sq(config: SimConfig, world: World, params: Params, state: State, xy):
+  """Squared distance in cells² from ``xy`` (in the belief's frame, where the planner plans) to
+  the nearest cell the robot's belief holds occupied, within ``max_inflation_cells + 1`` cells
+  (``inf`` beyond); outside the map is no wall, as in the planner's inflation
+  (:func:`mapping.inflate`)."""
+  cells, squared = _cells_around(config, world, xy)
+  logodds = state.logodds.at[cells[:, 0], cells[:, 1]].get(
+      mode="fill", fill_value=-jnp.inf, wrap_negative_indices=False)
+  return jnp.min(jnp.where(logodds > mapping.logit(params.p_occ), squared, jnp.inf))
 
 
 def _in_belief_frame(config: SimConfig, world: World, state: State, cells):
@@ -331,6 +352,18 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   blocked = has_waypoint & world.occupied[target[0], target[1]]
   path_len = jnp.where(blocked, state.path_idx, state.path_len)
   has_waypoint = has_waypoint & ~blocked
+  # A path planned before the walls beside it were mapped would take the disc onto walls the
+  # belief now holds (no collision: known walls are the planner's to avoid), into cells its
+  # planner no longer plans through, and a robot that drove on was left in narrow pockets it
+  # could not plan out of. It stops and replans instead; a step away from walls mapped inside
+  # its radius (the planner's escape route) goes on.
+  next_xy = cell_centre(target, world.origin, res)
+  wall_ahead = believed_wall_distance_sq(config, world, params, state, next_xy)
+  # Both in the belief's frame, as the planner saw them (it plans from the estimated pose's cell).
+  wall_here = believed_wall_distance_sq(config, world, params, state, state.pose_est[:2])
+  closes_in = has_waypoint & _within_radius(config, params, wall_ahead) & (wall_ahead < wall_here)
+  path_len = jnp.where(closes_in, state.path_idx, path_len)
+  has_waypoint = has_waypoint & ~closes_in
   target = jnp.where(has_waypoint, target, state.look_at)
   target_xy = cell_centre(target, world.origin, res)
   look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))

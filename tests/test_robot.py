@@ -22,6 +22,21 @@ def gap_world():
   return grid
 
 
+def on_straight_path_believing_all_free(config, world, params, start_xy, row, cols):
+  """A robot at ``start_xy`` whose belief is all free, following a straight path along ``row``
+  over ``cols`` (the walls ahead unmapped), at its first waypoint's successor."""
+  state = sim.reset(config, world, params, jax.random.PRNGKey(0),
+                    jnp.asarray([start_xy[0], start_xy[1], 0.0]))
+  path = np.stack([np.full(len(cols), row), cols], axis=1).astype(np.int32)
+  padding = config.path_capacity - len(path)
+  waypoints = np.concatenate([path, np.repeat(path[-1:], padding, axis=0)])
+  believed_free = jnp.full((config.height, config.width), -3.0, jnp.float32)
+  return state.replace(logodds=believed_free,
+                       entropy=jnp.sum(mapping.entropy_of_logodds(believed_free)),
+                       waypoints=jnp.asarray(waypoints), path_len=jnp.int32(len(path)),
+                       path_idx=jnp.int32(1), look_at=jnp.asarray(path[-1]))
+
+
 @EAGER_AND_JIT
 def test_touched_cells_are_the_occupied_cells_within_the_radius(transform):
   grid = gap_world()
@@ -50,14 +65,8 @@ def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
   params = make_params(res=0.1, r_robot=R_ROBOT, r_max=0.3, fov=0.1)
   config = config_for(grid.shape, grid.res, params, max_steps=40, n_beams=4, path_capacity=32)
   world = sim.make_world(grid, R_ROBOT, (0.55, 1.05))
-  state = sim.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([0.55, 1.05, 0.0]))
-  path = np.stack([np.full(25, 10), np.arange(5, 30)], axis=1).astype(np.int32)
-  waypoints = np.concatenate([path, np.repeat(path[-1:], 7, axis=0)])
-  believed_free = jnp.full(grid.shape, -3.0, jnp.float32)
-  state = state.replace(logodds=believed_free,
-                        entropy=jnp.sum(mapping.entropy_of_logodds(believed_free)),
-                        waypoints=jnp.asarray(waypoints), path_len=jnp.int32(25),
-                        path_idx=jnp.int32(1), look_at=jnp.asarray(path[-1]))
+  state = on_straight_path_believing_all_free(config, world, params, (0.55, 1.05), 10,
+                                              np.arange(5, 30))
   step = jax.jit(lambda s: sim.step(config, world, params, s))
   occupied_centres = np.argwhere(grid.occupied)[:, ::-1] * 0.1 + 0.05
   for _ in range(30):
@@ -111,14 +120,8 @@ def test_a_robot_two_cells_wide_does_not_enter_a_two_cell_gap():
   params = make_params(res=0.2, r_robot=0.2, r_max=0.3, fov=0.1)
   config = config_for(grid.shape, grid.res, params, max_steps=40, n_beams=4, path_capacity=24)
   world = sim.make_world(grid, 0.2, (0.5, 1.1))
-  state = sim.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([0.5, 1.1, 0.0]))
-  path = np.stack([np.full(17, 5), np.arange(2, 19)], axis=1).astype(np.int32)
-  waypoints = np.concatenate([path, np.repeat(path[-1:], 7, axis=0)])
-  believed_free = jnp.full(grid.shape, -3.0, jnp.float32)
-  state = state.replace(logodds=believed_free,
-                        entropy=jnp.sum(mapping.entropy_of_logodds(believed_free)),
-                        waypoints=jnp.asarray(waypoints), path_len=jnp.int32(17),
-                        path_idx=jnp.int32(1), look_at=jnp.asarray(path[-1]))
+  state = on_straight_path_believing_all_free(config, world, params, (0.5, 1.1), 5,
+                                              np.arange(2, 19))
   step = jax.jit(lambda s: sim.step(config, world, params, s))
   occupied_centres = np.argwhere(grid.occupied)[:, ::-1] * 0.2 + 0.1
   for _ in range(40):
@@ -131,6 +134,54 @@ def test_a_robot_two_cells_wide_does_not_enter_a_two_cell_gap():
   assert believed_occupied[4, 10]  # the jamb it touched
   view = sim.belief_view(config, params, state, sim.robot_view(config, world, state).cell)
   assert np.asarray(view.traversable)[tuple(sim.robot_view(config, world, state).cell)]
+
+
+def test_a_robot_stops_before_a_wall_mapped_after_it_planned():
+  """r_robot = res = 0.2 m. The path along row 4 was planned when the wall cell (3, 10) was not
+  mapped; now the belief holds it, so the waypoint (4, 10) (one cell from it) is inside the
+  robot's radius: the robot must end its path before it (no collision: the wall is known) rather
+  than drive on beside the wall into cells its planner no longer plans through."""
+  grid = box_world(12, 20, res=0.2, walls=((3, 4, 10, 11),))
+  params = make_params(res=0.2, r_robot=0.2, r_max=0.3, fov=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=20, n_beams=4, path_capacity=24)
+  world = sim.make_world(grid, 0.2, (0.5, 0.9))
+  state = on_straight_path_believing_all_free(config, world, params, (0.5, 0.9), 4,
+                                              np.arange(2, 19))
+  state = state.replace(logodds=state.logodds.at[3, 10].set(params.l_max))
+  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  for _ in range(20):
+    state, _ = step(state)
+    xy = np.asarray(state.pose[:2])
+    assert np.hypot(xy[0] - 2.1, xy[1] - 0.7) > 0.2 + 1e-3  # never within r of the wall's centre
+  assert int(state.collisions) == 0
+  assert int(state.path_idx) == int(state.path_len) == 8  # ended before waypoint 8, (4, 10)
+  np.testing.assert_allclose(np.asarray(state.pose[:2]), [1.9, 0.9], atol=1e-5)
+
+
+@pytest.mark.parametrize("cells, moves", [
+    ([(11, 15), (12, 15), (13, 15)], True),  # straight away from the wall
+    ([(11, 15), (11, 16), (11, 17)], True),  # along it, no nearer (d² 1 -> 2 -> 5)
+    ([(12, 15), (11, 15), (11, 14)], False),  # toward it (d² 4 -> 1)
+])
+def test_a_robot_inside_its_radius_of_a_known_wall_may_step_away_but_not_nearer(cells, moves):
+  """r_robot = 2 cells; the belief holds a wall at (10, 15) (pose noise can put a robot inside
+  its radius of one): a path may lead it out, never closer."""
+  grid = box_world(30, 30, res=0.1)
+  params = make_params(res=0.1, r_robot=0.2, r_max=0.3, fov=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=4, n_beams=4, path_capacity=8)
+  start = (cells[0][1] * 0.1 + 0.05, cells[0][0] * 0.1 + 0.05)
+  world = sim.make_world(grid, 0.2, start)
+  path = np.asarray(cells)
+  state = on_straight_path_believing_all_free(config, world, params, start, 0, np.arange(3))
+  waypoints = np.concatenate([path, np.repeat(path[-1:], config.path_capacity - 3, axis=0)])
+  state = state.replace(logodds=state.logodds.at[10, 15].set(params.l_max),
+                        waypoints=jnp.asarray(waypoints, jnp.int32), look_at=jnp.asarray(path[-1]))
+  state = state.replace(pose=state.pose.at[2].set(
+      np.arctan2(cells[1][0] - cells[0][0], cells[1][1] - cells[0][1])))
+  state, _ = sim.step(config, world, params, state)
+  moved = not np.allclose(np.asarray(state.pose[:2]), start, atol=1e-6)
+  assert moved == moves
+  assert int(state.path_len) == (3 if moves else 1)
 
 
 def test_starts_count_the_map_edge_as_a_wall():
