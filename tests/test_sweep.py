@@ -16,16 +16,20 @@ import textwrap
 import time
 from pathlib import Path
 
+import jax
+import numpy as np
 import pandas as pd
 import pytest
 
 import jaxplore
-from jaxplore import cli, memory, runner, sweeps
+from jaxplore import cli, memory, runner, sim, sweeps
+from jaxplore.resolve import resolve
 from jaxplore.runspec import RunSpec
 from jaxplore.sweeps import execute, schedule, settings
 from jaxplore.config import ConfigError
 
 REPO = Path(jaxplore.__file__).resolve().parents[1]
+RUNSPEC_FIELDS = {f.name for f in dataclasses.fields(RunSpec)}
 SETTINGS = dict(world="open", res=0.5, planner="li2020", max_steps=30, replan_every=5,
                 params={"r_max": 2.0}, progress=False, quiet=True, devices=1)
 # A sensor setting and a planner weight: the field of view changes the very first scan, so every
@@ -91,11 +95,19 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
       (a, k, s) for a in (3.0, 6.0) for k in (0.0, 0.3) for s in (0, 1))
   assert set(curves.robot) == set(range(8))
   assert (episodes.world == "open").all() and (episodes.planner == "li2020").all()
-  # common random numbers: a seed starts at the same pose in every setting
+  # common random numbers: seed s starts where PRNGKey(s) puts a robot, in every setting (the
+  # first recorded pose is one motion step, which may differ by setting, from the start)
   first = curves[curves.step == 1].set_index("robot")
+  resolved = resolve(RunSpec(**{k: v for k, v in SETTINGS.items() if k in RUNSPEC_FIELDS}))
+  one_step = float(resolved.params.v_max * resolved.params.dt)
+  starts = {}
   for s in (0, 1):
-    rows = episodes.robot[episodes.seed == s]
-    assert first.loc[rows, "x"].nunique() == 1 and first.loc[rows, "y"].nunique() == 1
+    pose = sim.reset(resolved.config, resolved.world, resolved.params, jax.random.PRNGKey(s)).pose
+    starts[s] = np.asarray(pose[:2])
+    for robot in episodes.robot[episodes.seed == s]:
+      moved = np.hypot(*(first.loc[robot, ["x", "y"]].to_numpy(float) - starts[s]))
+      assert moved <= one_step + 1e-5, (s, robot, moved)
+  assert np.hypot(*(starts[0] - starts[1])) > 2 * one_step  # the check tells the seeds apart
   # the settings differ (the sweep is not running one setting eight times): each seed's coverage
   # depends on its field of view
   for s in (0, 1):
