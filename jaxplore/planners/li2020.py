@@ -280,40 +280,65 @@ def ray_tree(radius: float):
 
 @functools.lru_cache(maxsize=None)
 def sight_levels(radius: float):
-  """:func:`ray_tree` regrouped for :func:`visible_gains`: by subtree (the centre's 8 neighbours
-  each root one), then by depth, so that the masks of one depth are all that the next reads.
+  """:func:`ray_tree` regrouped for :func:`visible_gains`: in groups of subtrees, each group by
+  depth, so that the masks of one depth of a group are all that its next depth reads.
 
-  Returns (steps i32[S, D, M, 6]: for the m-th offset of subtree s at depth d + 1, its (row,
+  A group is the subtree of one of the centre's 8 neighbours or, where that subtree is wider
+  (has more offsets at one depth) than the others, a part of it: the neighbour and some of its
+  children's subtrees (the neighbour's own gain counted in its first part only). The widest
+  depth sets the size of visible_gains' mask buffers: for R_e = 57 cells, 40 instead of 79.
+
+  Returns (steps i32[S, D, M, 7]: for the m-th offset of group s at depth d + 1, its (row,
   col), its parent's (row, col), the parent's index among the offsets of depth d (M for the
-  centre) and the step's index in ``mapping.NEIGHBOURS_8``; counts i32[S, D]; rim
-  i32[S, D, K, 2]: the crescent memberships of the offsets of each depth, (n, the offset's index
-  among those of its depth) for an offset in ``crescents(radius)[n]``, n indexing
-  ``mapping.NEIGHBOURS_8``; rim_counts i32[S, D]). Rows past a count are zero. D is even (an
-  empty depth last where needed).
+  centre), the step's index in ``mapping.NEIGHBOURS_8`` and 1 if its gain is counted here (0:
+  counted in another group); counts i32[S, D]; rim i32[S, D, K, 2]: the crescent memberships of
+  the counted offsets of each depth, (n, the offset's index among those of its depth) for an
+  offset in ``crescents(radius)[n]``, n indexing ``mapping.NEIGHBOURS_8``; rim_counts
+  i32[S, D]). Rows past a count are zero. D is even (an empty depth last where needed).
   """
   offsets, depth, member, sides = ray_tree(radius)
   parents = np.stack([sides[:, 1, 0], sides[:, 0, 1]], -1)
-  subtree = np.cumsum(depth == 1) - 1  # depth-first order: a new subtree at each depth 1
-  position, slots = np.zeros(len(offsets), np.int64), {}
-  for i in range(len(offsets)):
-    key = (subtree[i], depth[i])
-    position[i] = slots.get(key, 0)
-    slots[key] = position[i] + 1
-  n_sub, n_depth, width = int(subtree.max()) + 1, int(depth.max() + 1) // 2 * 2, max(slots.values())
-  where = {(subtree[i], tuple(offsets[i])): position[i] for i in range(len(offsets))}
-  steps = np.zeros((n_sub, n_depth, width, 6), np.int32)
-  counts = np.zeros((n_sub, n_depth), np.int32)
-  levels = [[[] for _ in range(n_depth)] for _ in range(n_sub)]
-  for i, (o, p, s, d) in enumerate(zip(offsets, parents, subtree, depth)):
-    direction = mapping.NEIGHBOURS_8.index((int(o[0] - p[0]), int(o[1] - p[1])))
-    parent = width if d == 1 else where[(s, tuple(p))]
-    steps[s, d - 1, position[i]] = (o[0], o[1], p[0], p[1], parent, direction)
-    counts[s, d - 1] += 1
-    levels[s][d - 1] += [(n, position[i]) for n in np.flatnonzero(member[i])]
+  n_depth = int(depth.max() + 1) // 2 * 2
+  # Depth-first order: a new subtree at each depth 1, a new child's subtree at each depth 2.
+  subtree, child = np.cumsum(depth == 1) - 1, np.cumsum(depth <= 2) - 1
+  widths = lambda unit: np.bincount(depth[unit], minlength=n_depth + 1)
+  subtrees = [np.flatnonzero(subtree == s) for s in range(subtree.max() + 1)]
+  children = {s: [np.flatnonzero((child == c) & (depth >= 2)) for c in np.unique(child[nodes])
+                  if depth[child == c].min() == 2] for s, nodes in enumerate(subtrees)}
+  limit = max([sorted(widths(nodes).max() for nodes in subtrees)[-min(2, len(subtrees))]]
+              + [widths(unit).max() for units in children.values() for unit in units])
+  groups = []  # (offset indices in depth-first order, counted flags)
+  for s, nodes in enumerate(subtrees):
+    if widths(nodes).max() <= limit:
+      groups.append((nodes, np.ones(len(nodes), bool)))
+      continue
+    bins = []
+    for unit in children[s]:
+      if not bins or (widths(np.concatenate([bins[-1], unit])) > limit).any():
+        bins.append(unit)
+      else:
+        bins[-1] = np.concatenate([bins[-1], unit])
+    groups += [(np.concatenate([nodes[:1], unit]), np.arange(len(unit) + 1) > 0 if b else
+                np.ones(len(unit) + 1, bool)) for b, unit in enumerate(bins)]
+  width = max(widths(nodes).max() for nodes, _ in groups)
+  steps = np.zeros((len(groups), n_depth, width, 7), np.int32)
+  counts = np.zeros((len(groups), n_depth), np.int32)
+  levels = [[[] for _ in range(n_depth)] for _ in groups]
+  for g, (nodes, counted) in enumerate(groups):
+    where = {}
+    for i, count_here in zip(nodes, counted):
+      o, p, d = offsets[i], parents[i], depth[i]
+      where[tuple(o)] = m = counts[g, d - 1]
+      direction = mapping.NEIGHBOURS_8.index((int(o[0] - p[0]), int(o[1] - p[1])))
+      parent = width if d == 1 else where[tuple(p)]
+      steps[g, d - 1, m] = (o[0], o[1], p[0], p[1], parent, direction, count_here)
+      counts[g, d - 1] += 1
+      if count_here:
+        levels[g][d - 1] += [(n, m) for n in np.flatnonzero(member[i])]
   rim_counts = np.array([[len(r) for r in by_d] for by_d in levels], np.int32)
   rim = np.zeros(rim_counts.shape + (max(1, int(rim_counts.max())), 2), np.int32)
-  for (s, d), count in np.ndenumerate(rim_counts):
-    rim[s, d, :count] = np.reshape(levels[s][d], (count, 2))
+  for (g, d), count in np.ndenumerate(rim_counts):
+    rim[g, d, :count] = np.reshape(levels[g][d], (count, 2))
   return steps, counts, rim, rim_counts
 
 
@@ -331,7 +356,7 @@ def visible_gains(gains, occupied, radius: float):
   chain steps diagonally between two occupied cells; the masks of one depth are kept, without
   the cells whose offset cell is occupied, for the next. The cost is two shifted reads of
   booleans, a few ANDs and one masked add per disc offset, then one more masked add per
-  crescent membership. The masks live in two buffers of one depth's ([M + 1, H, W], M ~ 1.4
+  crescent membership. The masks live in two buffers of one depth's ([M + 1, H, W], M ~ 0.7
   radius), not in a stack over depths: XLA:CPU copied that stack twice per offset (~85 % of
   the time of the one-loop version this replaces).
 
@@ -377,7 +402,8 @@ def visible_gains(gains, occupied, radius: float):
       at = table[m, :2]
       sight = seen & jax.lax.dynamic_slice(clear, (at[0] + pad, at[1] + pad), (h, w))
       masks = jax.lax.dynamic_update_index_in_dim(masks, sight, m, 0)
-      return masks, full + jnp.where(seen, window(framed_gain, at), 0.0)
+      counted = seen & (table[m, 6] > 0)
+      return masks, full + jnp.where(counted, window(framed_gain, at), 0.0)
 
     def add(j, crescent):
       n, m = rim[sub, d, j]
