@@ -65,6 +65,8 @@ def main(argv=None):
                       help="belief states per world (a multiple of plan_chunk)")
   parser.add_argument("--warm-steps", type=int, default=40)
   parser.add_argument("--repeats", type=int, default=3)
+  parser.add_argument("--memory", default="256,400,400",
+                      help="robots,H,W of a lockstep round whose XLA temp memory is reported")
   args = parser.parse_args(argv)
 
   import jax
@@ -127,6 +129,18 @@ def main(argv=None):
     table.append(f"| {world_name} | {h}x{w} | {radius:.1f} | {chunk} | {label} | {compile_s:.1f} "
                  f"| {per_call * 1e3:.1f} | {per_call / chunk * 1e3:.1f} "
                  f"| {old_call / per_call:.1f}x | {diff} |")
+  # XLA's temp memory (compiled, not run) for a whole batch vmapped, as the lockstep strategy
+  # plans on an accelerator, at the last world's R_e.
+  batch, h, w = (int(x) for x in args.memory.split(","))
+  shapes = (jax.ShapeDtypeStruct((batch, 2, h, w), jnp.float32),
+            jax.ShapeDtypeStruct((batch, h, w), bool))
+  memory = []
+  for label, fn in (("old", visible_gains_one_loop), ("new", li2020.visible_gains)):
+    batched = jax.jit(jax.vmap(fn, (0, 0, None)), static_argnums=2)
+    compiled = batched.lower(*shapes, radius).compile()
+    memory.append(f"{label} {compiled.memory_analysis().temp_size_in_bytes / 1e9:.2f} GB")
+  table.append(f"\nXLA temp memory, {batch} robots vmapped on {h}x{w} at R_e {radius:.1f} cells: "
+               + ", ".join(memory) + " (outputs and inputs apart).")
   load = " / ".join(f"{x:.2f}" for x in os.getloadavg())
   stamp = time.strftime("%Y-%m-%dT%H:%M:%S")
   text = (f"li2020 visible_gains, old vs new, on the inputs of li2020 planning rounds "
