@@ -351,7 +351,8 @@ def visible_gains(gains, occupied, radius: float):
   transparent, an occupied ``c`` is seen). This is Li Eq 20's ``Region(p_i)`` restricted to the
   cells a scan from ``p_i`` can reach: unknown cells behind a known wall are not in it.
 
-  The tree of sight lines is walked subtree by subtree, depth by depth (:func:`sight_levels`).
+  The tree of sight lines is walked group by group of subtrees, depth by depth
+  (:func:`sight_levels`).
   An offset's mask (the cells ``v`` that see ``v + offset``) is its parent's mask, cut where the
   chain steps diagonally between two occupied cells; the masks of one depth are kept, without
   the cells whose offset cell is occupied, for the next. The cost is two shifted reads of
@@ -370,7 +371,7 @@ def visible_gains(gains, occupied, radius: float):
     for the d-th of ``mapping.NEIGHBOURS_8``).
   """
   steps, counts, rim, rim_counts = (jnp.asarray(a) for a in sight_levels(radius))
-  n_sub, n_depth, width = steps.shape[:3]
+  n_groups, n_depth, width = steps.shape[:3]
   c, h, w = gains.shape
   pad = int(math.floor(radius)) + 1
   framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
@@ -393,8 +394,8 @@ def visible_gains(gains, occupied, radius: float):
     return jax.lax.dynamic_slice(field, (0, at[0] + pad, at[1] + pad), field.shape[:1] + (h, w))
 
   def level(k, parent_masks, masks, full, crescent):
-    sub, d = k // n_depth, k % n_depth  # depth d + 1 of subtree sub
-    table = steps[sub, d]
+    group, d = k // n_depth, k % n_depth  # depth d + 1 of the group
+    table = steps[group, d]
 
     def visit(m, carry):
       masks, full = carry
@@ -406,12 +407,12 @@ def visible_gains(gains, occupied, radius: float):
       return masks, full + jnp.where(counted, window(framed_gain, at), 0.0)
 
     def add(j, crescent):
-      n, m = rim[sub, d, j]
+      n, m = rim[group, d, j]
       seen = seen_at(parent_masks, table[m])
       return crescent.at[n].add(jnp.where(seen, window(framed_gain, table[m, :2]), 0.0))
 
-    masks, full = jax.lax.fori_loop(0, counts[sub, d], visit, (masks, full))
-    return masks, full, jax.lax.fori_loop(0, rim_counts[sub, d], add, crescent)
+    masks, full = jax.lax.fori_loop(0, counts[group, d], visit, (masks, full))
+    return masks, full, jax.lax.fori_loop(0, rim_counts[group, d], add, crescent)
 
   def two_levels(k, carry):
     # Two depths per iteration, each buffer in its place: swapping them in the carry of a
@@ -424,7 +425,7 @@ def visible_gains(gains, occupied, radius: float):
   # Slot M of both buffers is the centre's mask (every cell sees itself), never overwritten.
   masks = jnp.zeros((width + 1, h, w), bool).at[width].set(True)
   crescent = jnp.zeros((8,) + gains.shape, gains.dtype)
-  _, _, full, crescent = jax.lax.fori_loop(0, n_sub * n_depth // 2, two_levels,
+  _, _, full, crescent = jax.lax.fori_loop(0, n_groups * n_depth // 2, two_levels,
                                            (masks, masks, gains, crescent))
   return full, crescent
 
