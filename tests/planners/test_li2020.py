@@ -423,6 +423,102 @@ def test_visible_region_against_a_brute_force_line_of_sight_count(transform):
   assert np.abs(got - ref)[viewpoints].sum() <= 0.05 * ref[viewpoints].sum()
 
 
+def chain_walk_sums(gains, occupied, radius):
+  """NumPy oracle of :func:`li2020.visible_gains`: at every cell v, for every disc offset, walk
+  its ray_tree chain from v cell by cell. The offset's cell is seen unless a cell strictly
+  between v and it is occupied, or a step passes between two occupied cells (the two cells
+  beside it: for a straight step, the cells it steps from and to). Cells off the grid are clear
+  and hold no gain. Returns (full, crescent) as visible_gains does, in float64."""
+  offsets, _, member, sides = li2020.ray_tree(radius)
+  parent = {tuple(o): (int(s[1, 0]), int(s[0, 1])) for o, s in zip(offsets, sides)}
+  chains = {}
+  for o in map(tuple, offsets):
+    chain = [o]
+    while chain[-1] != (0, 0):
+      chain.append(parent[chain[-1]])
+    chains[o] = chain[::-1]  # from (0, 0) to o
+  h, w = occupied.shape
+  clear = lambda i, j: not (0 <= i < h and 0 <= j < w) or not occupied[i, j]
+  gain_at = lambda i, j: gains[:, i, j] if 0 <= i < h and 0 <= j < w else 0.0
+  full = gains.astype(np.float64)
+  crescent = np.zeros((8,) + gains.shape)
+  for vi in range(h):
+    for vj in range(w):
+      for o, m in zip(map(tuple, offsets), member):
+        cells = [(vi + a, vj + b) for a, b in chains[o]]
+        seen = all(clear(*c) for c in cells[1:-1]) and all(
+            clear(q[0], p[1]) or clear(p[0], q[1]) for p, q in zip(cells, cells[1:]))
+        if seen:
+          full[:, vi, vj] += gain_at(*cells[-1])
+          crescent[m, :, vi, vj] += gain_at(*cells[-1])
+  return full, crescent
+
+
+def visible_gains_one_loop(gains, occupied, radius: float):
+  """:func:`li2020.visible_gains` before its depth-by-depth rewrite (commit 0c98c96): one loop over
+  the offsets in depth-first order with a stack of one mask per depth."""
+  offsets, depth, member, sides = li2020.ray_tree(radius)
+  c, h, w = gains.shape
+  pad = int(math.floor(radius)) + 1
+  framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
+  framed_clear = jnp.pad(~occupied, [(pad, pad), (pad, pad)], constant_values=True)
+  table = jnp.asarray(offsets) + pad
+  sides = jnp.asarray(sides) + pad
+  stack = jnp.zeros((int(depth.max()) + 1, h, w), bool).at[0].set(True)
+  depth = jnp.asarray(depth)
+  rim = jnp.asarray(member.any(axis=1))
+  member = jnp.asarray(member, gains.dtype)
+
+  def visit(i, carry):
+    stack, full, crescent = carry
+    clear_at = lambda at: jax.lax.dynamic_slice(framed_clear, (at[0], at[1]), (h, w))
+    seen = stack[depth[i] - 1] & (clear_at(sides[i, 0]) | clear_at(sides[i, 1]))
+    stack = stack.at[depth[i]].set(seen & clear_at(table[i]))
+    value = jnp.where(seen, jax.lax.dynamic_slice(framed_gain, (0, table[i, 0], table[i, 1]),
+                                                  (c, h, w)), 0.0)
+    crescent = jax.lax.cond(rim[i], lambda x: x + member[i][:, None, None, None] * value[None],
+                            lambda x: x, crescent)
+    return stack, full + value, crescent
+
+  _, full, crescent = jax.lax.fori_loop(0, offsets.shape[0], visit,
+                                        (stack, gains, jnp.zeros((8,) + gains.shape, gains.dtype)))
+  return full, crescent
+
+
+SIGHT_CASES = ((2.5, (9, 8)), (4.0, (11, 13)), (5.3, (6, 9)))  # 5.3: past the grid, odd depth
+
+
+@functools.lru_cache(maxsize=None)
+def sight_case(radius, shape):
+  """Random walls (a quarter of the cells: many diagonal steps squeeze between two) and gains:
+  two channels of small integers (every float32 sum is exact, whatever its order), two of reals;
+  with the chain walk's and the one-loop version's answers (the eager and the jitted test share
+  them)."""
+  rng = np.random.default_rng(int(radius * 10))
+  occupied = rng.uniform(size=shape) < 0.25
+  gains = np.concatenate([rng.integers(0, 5, (2,) + shape),
+                          rng.uniform(0.0, 1.0, (2,) + shape)]).astype(np.float32)
+  old = jax.jit(visible_gains_one_loop, static_argnums=2)(jnp.asarray(gains), jnp.asarray(occupied),
+                                                          radius)
+  return occupied, gains, chain_walk_sums(gains, occupied, radius), [np.asarray(x) for x in old]
+
+
+@pytest.mark.parametrize("transform", [lambda f: f, lambda f: jax.jit(f, static_argnums=2)],
+                         ids=["eager", "jit"])
+def test_visible_gains_match_a_chain_walk_and_the_one_loop_version(transform):
+  """Radii below, at and past the grid's size, integer and not: the integer channels (which
+  cells are summed) identical, the real ones up to the order of the float32 sums."""
+  for radius, shape in SIGHT_CASES:
+    occupied, gains, walked, old = sight_case(radius, shape)
+    got = transform(li2020.visible_gains)(jnp.asarray(gains), jnp.asarray(occupied), radius)
+    for got_sum, walked_sum, old_sum in zip(got, walked, old):
+      got_sum = np.asarray(got_sum)
+      np.testing.assert_array_equal(got_sum[..., :2, :, :], walked_sum[..., :2, :, :])
+      np.testing.assert_array_equal(got_sum[..., :2, :, :], old_sum[..., :2, :, :])
+      np.testing.assert_allclose(got_sum, walked_sum, rtol=1e-6, atol=1e-6)
+      np.testing.assert_allclose(got_sum, old_sum, rtol=1e-6, atol=1e-6)
+
+
 def test_entropy_behind_a_known_wall_makes_the_disc_region_cycle_and_not_the_visible_one():
   """The livelock: a mapped corridor under a known wall, behind it unknown space made observable
   by two cells seen long ago. The whole-disc region counts the unknown cells near them from the
