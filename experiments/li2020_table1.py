@@ -148,7 +148,10 @@ def main(argv=None):
       print(f"{world:12s} {planner:17s} {time.perf_counter() - t0:7.1f} s  {reasons}", flush=True)
   episodes = pd.concat(episodes, ignore_index=True)
   curves = pd.concat(curves, ignore_index=True)
-  episodes["coverage_per_m"] = episodes.coverage_m2 / episodes.distance_m
+  # A robot that never moved (ended at its first plan) has no coverage per metre: NaN, left out
+  # of the mean, and the table says how many such robots a cell has.
+  episodes["coverage_per_m"] = (episodes.coverage_m2 / episodes.distance_m).where(
+      episodes.distance_m > 0)
 
   def budget_of(g):
     if "max_steps" in g and g.max_steps.notna().all():
@@ -163,8 +166,10 @@ def main(argv=None):
            "|---|---|" + "---|" * (len(COLUMNS) + 2)]
   for (world, planner), g in episodes.groupby(["world", "planner"], sort=False):
     cells = [f"{g[c].mean():.4g} ± {g[c].std():.3g}" for c, _ in COLUMNS]
+    still = int((g.distance_m <= 0).sum())
     lines.append(f"| {world} | {planner} | " + " | ".join(cells) +
-                 f" | {int((g.reason == 'complete').sum())}/{len(g)} | {budget_of(g)} |")
+                 f" | {int((g.reason == 'complete').sum())}/{len(g)}"
+                 + (f" ({still} never moved)" if still else "") + f" | {budget_of(g)} |")
   table = "\n".join(lines)
   li_lines = ["| world | planner | entropy reduction (nats) | distance (m) | E_r (nats/m) | Std(E_r) | "
               "coverage (m²) | coverage per metre (m²/m) |", "|---|---|---|---|---|---|---|---|"]
