@@ -81,49 +81,48 @@ def neighbour_count(mask, border=False):
   return out
 
 
+def within_radius(distance_sq, radius_cells):
+  """The inflation's test, in cells: a squared centre distance d² is within the radius when
+  ``d² <= r² + 1e-6`` (within, not only closer than; the tolerance absorbs float error)."""
+  return distance_sq <= radius_cells * radius_cells + 1e-6
+
+
+def _disc_views(mask, max_cells: int):
+  """(d², ``mask`` shifted by (di, dj)) for each offset of the disc of radius ``max_cells``
+  (static) but the centre; the grid outside counts as unset."""
+  h, w = mask.shape
+  m = max_cells
+  framed = jnp.pad(mask, m, constant_values=False)
+  for di in range(-m, m + 1):
+    for dj in range(-m, m + 1):
+      if (di, dj) != (0, 0) and di * di + dj * dj <= m * m:
+        yield di * di + dj * dj, jax.lax.slice(framed, (m + di, m + dj), (m + di + h, m + dj + w))
+
+
 def inflate(mask, radius_cells, max_cells: int):
   """Dilates ``mask`` by a disc of radius ``radius_cells`` (traced, <= ``max_cells``, static).
 
   A cell is set when a set cell lies within Euclidean distance ``radius_cells`` (centre to
-  centre). The grid outside counts as unset.
+  centre, :func:`within_radius`). The grid outside counts as unset.
   """
-  if max_cells == 0:
-    return mask
-  h, w = mask.shape
-  m = max_cells
-  framed = jnp.pad(mask, m, constant_values=False)
   out = mask
-  for di in range(-m, m + 1):
-    for dj in range(-m, m + 1):
-      if (di, dj) == (0, 0) or di * di + dj * dj > m * m:
-        continue
-      view = jax.lax.slice(framed, (m + di, m + dj), (m + di + h, m + dj + w))
-      within = jnp.float32(di * di + dj * dj) <= radius_cells * radius_cells + 1e-6
-      out = out | (view & within)
+  for squared, view in _disc_views(mask, max_cells):
+    out = out | (view & within_radius(jnp.float32(squared), radius_cells))
   return out
 
 
 def distance_sq_within(mask, max_cells: int):
   """Squared distance (in cells², centre to centre) from each cell to the nearest set cell of
-  ``mask`` within ``max_cells`` (static); ``max_cells² + 1`` where none is that close. The grid
-  outside counts as unset.
+  ``mask`` within ``max_cells`` (static); int32's largest value where none is that close. The
+  grid outside counts as unset.
 
-  ``distance_sq_within(mask, m) <= r²`` is :func:`inflate` ``(mask, r, m)`` (up to its 1e-6
-  tolerance); the distance itself orders cells of the inflated zone by clearance.
+  ``within_radius(distance_sq_within(mask, m), r)`` is :func:`inflate` ``(mask, r, m)``; the
+  distance itself orders cells of the inflated zone by clearance.
   """
-  h, w = mask.shape
-  m = max_cells
   far = jnp.int32(jnp.iinfo(jnp.int32).max)
   out = jnp.where(mask, jnp.int32(0), far)
-  if m == 0:
-    return out
-  framed = jnp.pad(mask, m, constant_values=False)
-  for di in range(-m, m + 1):
-    for dj in range(-m, m + 1):
-      if (di, dj) == (0, 0) or di * di + dj * dj > m * m:
-        continue
-      view = jax.lax.slice(framed, (m + di, m + dj), (m + di + h, m + dj + w))
-      out = jnp.minimum(out, jnp.where(view, jnp.int32(di * di + dj * dj), far))
+  for squared, view in _disc_views(mask, max_cells):
+    out = jnp.minimum(out, jnp.where(view, jnp.int32(squared), far))
   return out
 
 

@@ -43,8 +43,8 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
   """
   free, occupied, unknown = mapping.classify(state.logodds, params)
   wall_distance_sq = mapping.distance_sq_within(occupied, config.max_inflation_cells)
-  radius = params.r_robot / config.res
-  inflated = wall_distance_sq.astype(jnp.float32) <= radius * radius + 1e-6
+  inflated = mapping.within_radius(wall_distance_sq.astype(jnp.float32),
+                                   params.r_robot / config.res)
   escape_zone = free & inflated
   escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(True, mode="drop") & escape_zone
   framed_distance = mapping.frame(wall_distance_sq, -1)

@@ -267,9 +267,8 @@ def _cells_around(config: SimConfig, world: World, xy):
 
 
 def _within_radius(config: SimConfig, params: Params, squared):
-  """:func:`mapping.inflate`'s test, in cells: d² <= (r / res)² + 1e-6."""
-  radius = params.r_robot / config.res
-  return squared <= radius * radius + 1e-6
+  """:func:`mapping.within_radius` for the robot's radius, ``squared`` in cells²."""
+  return mapping.within_radius(squared, params.r_robot / config.res)
 
 
 def touched_cells(config: SimConfig, world: World, params: Params, xy):

@@ -4,6 +4,8 @@ the exact union of swept cells (Eq 20)."""
 import dataclasses
 import functools
 import math
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +19,9 @@ from jaxplore import mapping
 from jaxplore.config import make_params
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.planners import base, li2020
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
+from bench_visible_gains import visible_gains_one_loop  # noqa: E402  (visible_gains at 0c98c96)
 
 H, W = 26, 34
 CONFIG = base.PlannerContext(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
@@ -451,37 +456,6 @@ def chain_walk_sums(gains, occupied, radius):
         if seen:
           full[:, vi, vj] += gain_at(*cells[-1])
           crescent[m, :, vi, vj] += gain_at(*cells[-1])
-  return full, crescent
-
-
-def visible_gains_one_loop(gains, occupied, radius: float):
-  """:func:`li2020.visible_gains` before its depth-by-depth rewrite (commit 0c98c96): one loop over
-  the offsets in depth-first order with a stack of one mask per depth."""
-  offsets, depth, member, sides = li2020.ray_tree(radius)
-  c, h, w = gains.shape
-  pad = int(math.floor(radius)) + 1
-  framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
-  framed_clear = jnp.pad(~occupied, [(pad, pad), (pad, pad)], constant_values=True)
-  table = jnp.asarray(offsets) + pad
-  sides = jnp.asarray(sides) + pad
-  stack = jnp.zeros((int(depth.max()) + 1, h, w), bool).at[0].set(True)
-  depth = jnp.asarray(depth)
-  rim = jnp.asarray(member.any(axis=1))
-  member = jnp.asarray(member, gains.dtype)
-
-  def visit(i, carry):
-    stack, full, crescent = carry
-    clear_at = lambda at: jax.lax.dynamic_slice(framed_clear, (at[0], at[1]), (h, w))
-    seen = stack[depth[i] - 1] & (clear_at(sides[i, 0]) | clear_at(sides[i, 1]))
-    stack = stack.at[depth[i]].set(seen & clear_at(table[i]))
-    value = jnp.where(seen, jax.lax.dynamic_slice(framed_gain, (0, table[i, 0], table[i, 1]),
-                                                  (c, h, w)), 0.0)
-    crescent = jax.lax.cond(rim[i], lambda x: x + member[i][:, None, None, None] * value[None],
-                            lambda x: x, crescent)
-    return stack, full + value, crescent
-
-  _, full, crescent = jax.lax.fori_loop(0, offsets.shape[0], visit,
-                                        (stack, gains, jnp.zeros((8,) + gains.shape, gains.dtype)))
   return full, crescent
 
 
