@@ -17,7 +17,14 @@ code (RobustFieldAutonomyLab, ``explo_bay_opt_2d_turtlebot_demo.cpp``) where it 
    frontier cell.
 3. A random order of the valid candidates (drawn from the plan key): the first ``n_train`` are
    the training set, the next ``n_test`` the test set. Fewer than ``min_valid`` valid
-   candidates: exploration is finished (``valid=False``; the engine ends the episode).
+   candidates while frontier groups remain: the robot turns in place by ``rescan_angle``
+   (counter-clockwise) and plans again after the turn's scans, as the authors' code does when it
+   finds no candidate ("Rotate 60 degrees": 0.4 rad/s for 2.6 s, then candidates again); a
+   robot's first 190° scan beside a wall often leaves too few. After ``rescan_turns`` such turns
+   in a row (a full circle at the defaults), or with no frontier group left, exploration is
+   finished (``valid=False``; the engine ends the episode). The authors' loop turns without
+   limit and ends exploration by a map-entropy threshold instead; a bounded count keeps a robot
+   whose remaining frontiers offer no valid candidate from turning forever.
 4. "Mutual information" of a candidate: the gain of a virtual scan from its pose
    (:mod:`jaxplore.virtual_scan`: the lidar, ``n_beams`` beams over the sensor's field of view
    and range, cast into the belief) — the belief's entropy drop in nats (``gain_kind`` 0), the
@@ -46,6 +53,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,6 +70,7 @@ DEFAULTS = {
     "gain_kind": 0.0,  # 0 entropy drop (nats), 1 newly known area, 2 newly free area (m²)
     "min_distance": 0.25,  # floor of the path distance MI is divided by, m
     "robot_clearance": 0.25,  # candidates closer to the robot are dropped, m
+    "rescan_angle": math.pi / 3,  # turn in place when too few candidates, rad (the code: 60°)
 }
 
 
@@ -78,7 +87,8 @@ class Settings:
     n_test: capacity of the test set the acquisition is maximised over.
     bo_iterations: Bayesian-optimisation rounds (each one more virtual scan).
     fit_steps: Adam steps per hyper-parameter fit.
-    min_valid: fewer valid candidates than this end the exploration.
+    min_valid: fewer valid candidates than this make the robot turn in place and rescan.
+    rescan_turns: turns in place in a row, without enough candidates, that end the exploration.
     n_beams: beams of a virtual scan.
   """
 
@@ -93,14 +103,15 @@ class Settings:
   bo_iterations: int = 3
   fit_steps: int = 100
   min_valid: int = 4
+  rescan_turns: int = 6
   n_beams: int = 190
 
   def __post_init__(self):
     for name in ("n_yaws", "n_radii", "max_groups", "n_train", "n_test", "fit_steps", "n_beams"):
       if int(getattr(self, name)) < 1:
         raise ConfigError(f"gpbo: {name} must be >= 1, got {getattr(self, name)}")
-    if self.bo_iterations < 0 or self.min_valid < 1:
-      raise ConfigError("gpbo: bo_iterations must be >= 0 and min_valid >= 1")
+    if self.bo_iterations < 0 or self.min_valid < 1 or self.rescan_turns < 0:
+      raise ConfigError("gpbo: bo_iterations and rescan_turns must be >= 0 and min_valid >= 1")
     if self.radius_min <= 0 or self.radius_step < 0 or self.frontier_clearance < 0:
       raise ConfigError("gpbo: radius_min must be > 0, radius_step and frontier_clearance >= 0")
 
@@ -117,12 +128,49 @@ def validate(weights, params, ctx):
       raise ConfigError(f"gpbo: {name} must be > 0")
   if np.any(np.asarray(weights["robot_clearance"]) < 0):
     raise ConfigError("gpbo: robot_clearance must be >= 0")
+  angle = np.asarray(weights["rescan_angle"])
+  if np.any(~np.isfinite(angle) | (angle <= 0) | (angle >= 2 * math.pi)):
+    raise ConfigError(f"gpbo: rescan_angle must be in (0, 2π) rad, got {angle}")
+
+
+@chex.dataclass(frozen=True)
+class Memory:
+  """What a robot's ``gpbo`` keeps between plans.
+
+  Attributes:
+    raw: f32[3], the GP's unconstrained hyper-parameters, the warm start of the next fit.
+    turns: i32, turns in place in a row for want of candidates (step 3 of the module docstring).
+  """
+
+  raw: chex.Array
+  turns: chex.Array
 
 
 def init_memory(ctx, params):
-  """The GP's unconstrained hyper-parameters, the warm start of the next fit: σ_f² = 1 (the
-  targets are normalised), ℓ = 1 (m and rad), σ_n² = 0.01."""
-  return gp.unconstrain(1.0, 1.0, 0.01)
+  """σ_f² = 1 (the targets are normalised), ℓ = 1 (m and rad), σ_n² = 0.01; no turn yet."""
+  return Memory(raw=gp.unconstrain(1.0, 1.0, 0.01), turns=jnp.int32(0))
+
+
+def turn_in_place(ctx, robot: base.RobotView, angle):
+  """A plan that keeps the robot on its cell and turns it by ``angle`` (rad, counter-clockwise).
+
+  The look-at cell lies on the ray along heading + ``angle`` (x = column, y = row) from the
+  robot's cell centre, up to 64 cells out (a direction to within a degree) but never past the
+  outermost cell centres, so the grid's border shortens the ray instead of bending it.
+  """
+  heading = robot.pose[2] + angle
+  direction = jnp.stack([jnp.sin(heading), jnp.cos(heading)])
+  start = robot.cell.astype(jnp.float32) + 0.5
+  upper = jnp.asarray([ctx.height, ctx.width], jnp.float32) - 0.5
+  # How far the ray runs along each axis before it leaves [0.5, size - 0.5].
+  room = jnp.where(direction > 1e-6, (upper - start) / jnp.maximum(direction, 1e-6),
+                   jnp.where(direction < -1e-6, (0.5 - start) / jnp.minimum(direction, -1e-6), jnp.inf))
+  reach = jnp.minimum(64.0, jnp.min(room))
+  look_at = jnp.floor(start + reach * direction).astype(jnp.int32)
+  waypoints = jnp.zeros((ctx.path_capacity, 2), jnp.int32).at[0].set(robot.cell)
+  return base.Plan(waypoints=waypoints, length=jnp.int32(1), goal=robot.cell, look_at=look_at,
+                   valid=jnp.bool_(True), gain=jnp.float32(0), cost=jnp.float32(0),
+                   n_candidates=jnp.int32(0))
 
 
 def _weights(params) -> dict:
@@ -245,7 +293,7 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
 
   slots = n_train + n_bo
   init = (jnp.zeros((slots,), jnp.int32), jnp.zeros((slots,), jnp.float32), jnp.zeros((slots,), bool),
-          picked[n_train:], jnp.asarray(memory, jnp.float32))
+          picked[n_train:], jnp.asarray(memory.raw, jnp.float32))
   train_index, train_y, train_mask, _, raw = jax.lax.fori_loop(0, slots, evaluate, init)
 
   best = jnp.argmax(jnp.where(train_mask, train_y, -jnp.inf))
@@ -257,4 +305,9 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
                    valid=valid_plan, gain=jnp.where(valid_plan, train_y[best], 0.0).astype(jnp.float32),
                    cost=jnp.where(valid_plan, path_m[chosen], jnp.inf).astype(jnp.float32),
                    n_candidates=n_valid)
-  return plan, raw
+  # Too few candidates while frontier groups remain: turn and look again (step 3).
+  rescan = ~valid_plan & jnp.any(groups.valid) & (memory.turns < settings.rescan_turns)
+  turn = turn_in_place(ctx, robot, w["rescan_angle"]).replace(n_candidates=n_valid)
+  plan = jax.tree.map(lambda a, b: jnp.where(rescan, a, b), turn, plan)
+  turns = jnp.where(valid_plan, 0, memory.turns + rescan.astype(jnp.int32))
+  return plan, Memory(raw=raw, turns=turns.astype(jnp.int32))

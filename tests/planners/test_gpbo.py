@@ -144,7 +144,8 @@ def test_plan_goes_to_a_valid_candidate_with_the_mi_numpy_computes():
   values, path = _numpy_mi(state, goal, np.asarray(plan.look_at), (30, 5), PARAMS)
   np.testing.assert_allclose(float(plan.cost), path, rtol=1e-5)
   assert values and min(abs(v - float(plan.gain)) / v for v in values) < 0.02, (values, float(plan.gain))
-  assert np.all(np.isfinite(np.asarray(memory))) and not np.allclose(memory, gpbo.init_memory(CTX, PARAMS))
+  assert np.all(np.isfinite(np.asarray(memory.raw)))
+  assert not np.allclose(memory.raw, gpbo.init_memory(CTX, PARAMS).raw) and int(memory.turns) == 0
 
 
 def test_a_mapped_room_without_frontiers_ends_the_exploration():
@@ -157,7 +158,9 @@ def test_a_mapped_room_without_frontiers_ends_the_exploration():
   memory = gpbo.init_memory(CTX, PARAMS)
   plan, new_memory = PLAN(view, robot_at((30, 5)), PARAMS, jax.random.key(1), memory)
   assert not bool(plan.valid) and int(plan.length) == 0 and int(plan.n_candidates) == 0
-  np.testing.assert_array_equal(np.asarray(new_memory), np.asarray(memory))
+  # No frontier group left: no turn in place either.
+  np.testing.assert_array_equal(np.asarray(new_memory.raw), np.asarray(memory.raw))
+  assert int(new_memory.turns) == 0
 
 
 @pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
@@ -179,3 +182,44 @@ def test_gpbo_explores_a_box_world_with_rooms_to_completion():
                                jax.random.split(jax.random.key(5), robots))
   reasons = [sim.REASONS[int(r)] for r in np.asarray(state.reason)]
   assert reasons == ["complete"] * robots, (reasons, np.asarray(state.steps))
+
+
+def pocket(radius=3):
+  """A robot's first look: a small free pocket around (20, 20), unknown all around it."""
+  state = np.full((H, W), UNK)
+  state[20 - radius:21 + radius, 20 - radius:21 + radius] = FREE
+  return state
+
+
+@pytest.mark.parametrize("theta", [0.0, 2.5, -1.2])
+def test_too_few_candidates_with_frontiers_left_turn_the_robot_in_place(theta):
+  # Every candidate lies >= 1 m (10 cells) from a frontier of the 7x7 pocket: in unknown space.
+  view = make_view(pocket())
+  assert np.asarray(view.frontier).any()
+  memory = gpbo.init_memory(CTX, PARAMS)
+  plan, new_memory = PLAN(view, robot_at((20, 20), theta), PARAMS, jax.random.key(2), memory)
+  assert bool(plan.valid) and int(plan.length) == 1 and int(plan.n_candidates) < SETTINGS.min_valid
+  np.testing.assert_array_equal(np.asarray(plan.goal), [20, 20])
+  np.testing.assert_array_equal(np.asarray(plan.waypoints[0]), [20, 20])
+  # The look-at cell is where heading + 60° points (x = column, y = row), inside the grid.
+  look = np.asarray(plan.look_at)
+  assert 0 <= look[0] < H and 0 <= look[1] < W
+  bearing = math.atan2(look[0] + 0.5 - 20.5, look[1] + 0.5 - 20.5)
+  error = (bearing - theta - PARAMS.planner["rescan_angle"] + math.pi) % (2 * math.pi) - math.pi
+  assert abs(error) < math.radians(3), (look, math.degrees(error))
+  assert int(new_memory.turns) == 1
+  np.testing.assert_array_equal(np.asarray(new_memory.raw), np.asarray(memory.raw))
+
+
+def test_the_last_allowed_turn_without_candidates_ends_the_exploration():
+  view = make_view(pocket())
+  memory = gpbo.init_memory(CTX, PARAMS).replace(turns=jnp.int32(SETTINGS.rescan_turns))
+  plan, new_memory = PLAN(view, robot_at((20, 20)), PARAMS, jax.random.key(2), memory)
+  assert not bool(plan.valid) and int(plan.length) == 0
+  assert int(new_memory.turns) == SETTINGS.rescan_turns
+
+
+def test_a_plan_with_enough_candidates_resets_the_turn_count():
+  memory = gpbo.init_memory(CTX, PARAMS).replace(turns=jnp.int32(3))
+  plan, new_memory = PLAN(make_view(belief()), robot_at((30, 5)), PARAMS, jax.random.key(0), memory)
+  assert bool(plan.valid) and int(plan.length) > 1 and int(new_memory.turns) == 0
