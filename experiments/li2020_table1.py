@@ -61,7 +61,9 @@ LI_TABLE1 = {
 }
 PLANNERS = ("li2020", "nearest_frontier", "gpbo")
 # Extra rows (--variants): label -> (planner, planner weights).
-VARIANTS = {"li2020_per_metre": ("li2020", {"select": 1.0})}
+VARIANTS = {"li2020_per_metre": ("li2020", {"select": 1.0}),
+            # Without the progress timeout (not Li's): what it costs li2020's rows.
+            "li2020_no_timeout": ("li2020", {"progress_m": 0.0})}
 COLUMNS = [("entropy_reduction", "entropy reduction (nats)"), ("distance_m", "distance (m)"),
            ("E_r", "E_r (nats/m)"), ("Std_E_r", "Std(E_r) (nats/m)"), ("coverage_m2", "coverage (m²)"),
            # Li's "Entropy" column is 16 x coverage on every row: their E_r is coverage per metre.
