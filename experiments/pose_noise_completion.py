@@ -11,6 +11,10 @@ Usage:
   python experiments/pose_noise_completion.py                        # lab, office, building; nf
   python experiments/pose_noise_completion.py --planners nearest_frontier,li2020 --robots 16
   python experiments/pose_noise_completion.py --planners nearest_frontier,li2020 --cached-only
+  python experiments/pose_noise_completion.py --planners li2020_no_timeout   # a variant row
+
+``--planners`` takes planner names and the variant rows of ``li2020_table1.py`` (a planner with
+some weights set, e.g. ``li2020_no_timeout``: li2020 without its progress timeout).
 
 Writes ``experiments/results/pose_noise_completion.md`` (and the episodes beside it).
 """
@@ -44,6 +48,7 @@ def main(argv=None):
   import pandas as pd
 
   import jaxplore
+  from li2020_table1 import VARIANTS
 
   out = Path(args.out)
   out.mkdir(parents=True, exist_ok=True)
@@ -58,9 +63,11 @@ def main(argv=None):
           continue
         else:
           t0 = time.perf_counter()
-          result = jaxplore.run(world=world, planner=planner, robots=args.robots, seed=0,
+          name, weights = VARIANTS.get(planner, (planner, None))
+          result = jaxplore.run(world=world, planner=name, robots=args.robots, seed=0,
                                 preset=args.preset, pose_noise=noise, progress=False, quiet=True,
-                                robot_seeds=list(range(args.robots)), devices=args.devices)
+                                robot_seeds=list(range(args.robots)), devices=args.devices,
+                                planner_params=weights)
           episodes = result.episodes
           episodes.to_parquet(part.with_name(part.name + ".tmp"), index=False)
           os.replace(part.with_name(part.name + ".tmp"), part)
