@@ -156,7 +156,10 @@ def turn_in_place(ctx, robot: base.RobotView, angle):
 
   The look-at cell lies on the ray along heading + ``angle`` (x = column, y = row) from the
   robot's cell centre, up to 64 cells out (a direction to within a degree) but never past the
-  outermost cell centres, so the grid's border shortens the ray instead of bending it.
+  outermost cell centres, so the grid's border shortens the ray instead of bending it. The
+  goal is the robot's own cell: a second turn there in a row blacklists that cell as a goal
+  (the engine's rule for a goal chosen twice while the robot stands on it), which only takes
+  it out of later candidate sets.
   """
   heading = robot.pose[2] + angle
   direction = jnp.stack([jnp.sin(heading), jnp.cos(heading)])
