@@ -167,7 +167,8 @@ def turn_in_place(ctx, robot: base.RobotView, angle):
   upper = jnp.asarray([ctx.height, ctx.width], jnp.float32) - 0.5
   # How far the ray runs along each axis before it leaves [0.5, size - 0.5].
   room = jnp.where(direction > 1e-6, (upper - start) / jnp.maximum(direction, 1e-6),
-                   jnp.where(direction < -1e-6, (0.5 - start) / jnp.minimum(direction, -1e-6), jnp.inf))
+                   jnp.where(direction < -1e-6,
+                             (0.5 - start) / jnp.minimum(direction, -1e-6), jnp.inf))
   reach = jnp.minimum(64.0, jnp.min(room))
   look_at = jnp.floor(start + reach * direction).astype(jnp.int32)
   waypoints = jnp.zeros((ctx.path_capacity, 2), jnp.int32).at[0].set(robot.cell)
