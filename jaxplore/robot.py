@@ -347,8 +347,11 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   has_waypoint = state.path_idx < state.path_len
   idx = jnp.minimum(state.path_idx, config.path_capacity - 1)
   target = jnp.where(has_waypoint, state.waypoints[idx], state.look_at)
-  # Collisions are impossible by construction: a waypoint the truth says is occupied ends the path.
+  # A waypoint the truth says is occupied ends the path, and the robot feels it like a bump: a
+  # scan integrated at a slightly wrong pose can leave a wall cell believed free, and a planner
+  # would send the robot to that "frontier" again and again (seen with pose noise on `campus`).
   blocked = has_waypoint & world.occupied[target[0], target[1]]
+  state = _feel_collision(config, world, params, state, target[None], (running & blocked)[None])
   path_len = jnp.where(blocked, state.path_idx, state.path_len)
   has_waypoint = has_waypoint & ~blocked
   # A path planned before the walls beside it were mapped would take the disc onto walls the

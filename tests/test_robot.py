@@ -224,3 +224,23 @@ def test_a_start_is_judged_alike_at_every_edge_and_wall_as_the_disc_collision_wo
     verdicts.append(at[0])
     assert at[0] == (nearest >= r), (d, at[0], nearest)
   assert not all(verdicts) and any(verdicts)
+
+
+@EAGER_AND_JIT
+def test_a_waypoint_in_a_wall_believed_free_ends_the_path_and_is_learnt(transform):
+  """A disc smaller than a cell (so no disc contact comes first) on a path along row 4 through
+  the wall cell (4, 10) that its belief holds free: the path ends before it, no collision is
+  counted, and the cell becomes occupied in the belief (before, it stayed free and a planner
+  chose it again at every plan)."""
+  grid = box_world(12, 20, res=0.2, walls=((4, 5, 10, 11),))
+  params = make_params(res=0.2, r_robot=0.05, r_max=0.3, fov=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=20, n_beams=4, path_capacity=24)
+  world = sim.make_world(grid, 0.2, (0.5, 0.9))
+  state = on_straight_path_believing_all_free(config, world, params, (0.5, 0.9), 4,
+                                              np.arange(2, 19))
+  step = transform(lambda s: sim.step(config, world, params, s))
+  for _ in range(20):
+    state, _ = step(state)
+  assert int(state.collisions) == 0
+  assert int(state.path_idx) == int(state.path_len) == 8  # ended before waypoint 8, (4, 10)
+  assert float(state.logodds[4, 10]) == pytest.approx(float(params.l_max))
