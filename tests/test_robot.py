@@ -37,6 +37,18 @@ def on_straight_path_believing_all_free(config, world, params, start_xy, row, co
                        path_idx=jnp.int32(1), look_at=jnp.asarray(path[-1]))
 
 
+def row_4_path_past_a_wall_cell(wall, r_robot):
+  """A 12 x 20 box at 0.2 m with one wall cell ``wall``; a robot at (0.5, 0.9) on a straight
+  path along row 4 (columns 2-18) that its all-free belief let it plan."""
+  grid = box_world(12, 20, res=0.2, walls=((wall[0], wall[0] + 1, wall[1], wall[1] + 1),))
+  params = make_params(res=0.2, r_robot=r_robot, r_max=0.3, fov=0.1)
+  config = config_for(grid.shape, grid.res, params, max_steps=20, n_beams=4, path_capacity=24)
+  world = sim.make_world(grid, 0.2, (0.5, 0.9))
+  state = on_straight_path_believing_all_free(config, world, params, (0.5, 0.9), 4,
+                                              np.arange(2, 19))
+  return config, world, params, state
+
+
 @EAGER_AND_JIT
 def test_touched_cells_are_the_occupied_cells_within_the_radius(transform):
   grid = gap_world()
@@ -141,12 +153,7 @@ def test_a_robot_stops_before_a_wall_mapped_after_it_planned():
   mapped; now the belief holds it, so the waypoint (4, 10) (one cell from it) is inside the
   robot's radius: the robot must end its path before it (no collision: the wall is known) rather
   than drive on beside the wall into cells its planner no longer plans through."""
-  grid = box_world(12, 20, res=0.2, walls=((3, 4, 10, 11),))
-  params = make_params(res=0.2, r_robot=0.2, r_max=0.3, fov=0.1)
-  config = config_for(grid.shape, grid.res, params, max_steps=20, n_beams=4, path_capacity=24)
-  world = sim.make_world(grid, 0.2, (0.5, 0.9))
-  state = on_straight_path_believing_all_free(config, world, params, (0.5, 0.9), 4,
-                                              np.arange(2, 19))
+  config, world, params, state = row_4_path_past_a_wall_cell((3, 10), r_robot=0.2)
   state = state.replace(logodds=state.logodds.at[3, 10].set(params.l_max))
   step = jax.jit(lambda s: sim.step(config, world, params, s))
   for _ in range(20):
@@ -232,12 +239,7 @@ def test_a_waypoint_in_a_wall_believed_free_ends_the_path_and_is_learnt(transfor
   the wall cell (4, 10) that its belief holds free: the path ends before it, no collision is
   counted, and the cell becomes occupied in the belief (before, it stayed free and a planner
   chose it again at every plan)."""
-  grid = box_world(12, 20, res=0.2, walls=((4, 5, 10, 11),))
-  params = make_params(res=0.2, r_robot=0.05, r_max=0.3, fov=0.1)
-  config = config_for(grid.shape, grid.res, params, max_steps=20, n_beams=4, path_capacity=24)
-  world = sim.make_world(grid, 0.2, (0.5, 0.9))
-  state = on_straight_path_believing_all_free(config, world, params, (0.5, 0.9), 4,
-                                              np.arange(2, 19))
+  config, world, params, state = row_4_path_past_a_wall_cell((4, 10), r_robot=0.05)
   step = transform(lambda s: sim.step(config, world, params, s))
   for _ in range(20):
     state, _ = step(state)
