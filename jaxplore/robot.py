@@ -161,7 +161,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
     end_rows, end_cols = sensor.end_cells(scan, est_uv[0], est_uv[1], exact, est_dirs,
                                           true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
     observed = sensor.mark_observed(sensor.empty_observation(shape), shape, scan, est_uv[0], est_uv[1],
-                                    end_rows, end_cols, n_cross, active, est_dirs)
+                                    end_rows, end_cols, n_cross, active, est_dirs,
+                                    margin=params.free_margin / res if config.pose_noise else None)
 
     # Relocalisation: enough beams end on occupied cells the belief already knows well.
     old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0)

@@ -382,7 +382,7 @@ def observation_grid(observed, shape):
 
 
 def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cross: int, active=True,
-                  dirs=None):
+                  dirs=None, margin=None):
   """Writes what a scan says about the grid into ``observed``: 1 = seen free, 2 = seen occupied.
 
   Seen from (u0, v0) (where the robot *believes* it is) along ``scan.angles``: a cell a beam
@@ -395,6 +395,11 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
     end_rows, end_cols: i32[n] from :func:`end_cells`.
     active: traced bool; when False nothing is written.
     dirs: :func:`directions` of ``scan.angles``, if the caller has them (see :func:`measure`).
+    margin: None, or how far (cells; traced) a beam must run inside a cell before it leaves the
+      cell or its range ends for the cell to be marked free. For a scan integrated from an
+      estimated pose: the true beam passed a wall cell's corner, or ended on its face, but the
+      estimate's beam, a few mm off, clips the cell by less than its error; marked free, such
+      cells eat into walls (a diagonal wall seen free along its staircase).
   """
   du, dv = directions(scan.angles) if dirs is None else dirs
   sink = observed.shape[0] - 1
@@ -407,9 +412,13 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
   end_ok = scan.hit & _inside(end_rows, end_cols, shape) & ~own
   end_index = jnp.where(end_ok, _observation_index(end_rows, end_cols, shape), -1)
 
-  def free_index(rows, cols, t, ranges, end_index):
+  def free_index(rows, cols, t, ranges, end_index, beam_dirs=None):
     index = _observation_index(rows, cols, shape)
     free = (t < ranges) & _inside(rows, cols, shape) & (index != end_index)
+    if margin is not None and beam_dirs is not None:
+      past = t + margin
+      free &= (past < ranges) & (jnp.floor(u0 + past * beam_dirs[0]).astype(jnp.int32) == cols) & (
+          jnp.floor(v0 + past * beam_dirs[1]).astype(jnp.int32) == rows)
     return jnp.where(free, index, sink)
 
   start_rows = jnp.broadcast_to(start_row, scan.ranges.shape)
@@ -431,8 +440,9 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
     def body(carry):
       k0, observed = carry
       (t_x, row_x, col_x), (t_y, row_y, col_y) = _crossings(b, u0, v0, (k0 + block).astype(jnp.float32))
-      index = jnp.concatenate([free_index(row_x, col_x, t_x, ranges[None], end_index[None]),
-                               free_index(row_y, col_y, t_y, ranges[None], end_index[None])])
+      beam_dirs = (du[None], dv[None])
+      index = jnp.concatenate([free_index(row_x, col_x, t_x, ranges[None], end_index[None], beam_dirs),
+                               free_index(row_y, col_y, t_y, ranges[None], end_index[None], beam_dirs)])
       return k0 + block_size, observed.at[index.ravel()].set(1, mode=PROMISE_IN_BOUNDS)
 
     # Crossing k is at least k cells away: none past the longest range of the group is free.
