@@ -18,6 +18,16 @@ map thus stops after the round that settles it instead of running a second round
 nothing changed. Values only ever decrease, and every finite value is the float32 length of a
 real path.
 
+On an accelerator the sweeps are a chain of tiny kernels (a line step each: ~2,800 launches a
+round on a 125 x 225 grid, measured on one H200). There the solver can instead relax every
+cell from its 8 neighbours at once, pass after pass (synchronous Bellman-Ford, *relaxation*,
+one fused kernel per pass; the fixed-point check every ``RELAXATION_PASSES_PER_CHECK`` passes).
+Both schedules reach the same distances bit for bit: any order of these relaxations stops only
+at the fixed point, and the fixed point is unique: each cell's value is then the least float32
+left-to-right sum over the paths that reach it (it is the sum of one real path, and by induction
+along any path, with rounding monotone, no larger than that path's sum). Relaxation needs as
+many passes as the longest shortest path has moves, the sweeps as many rounds as it has turns.
+
 Predecessors are chosen once, from the converged distances: a cell points at a neighbour with
 a strictly smaller distance whose edge is tight. Strictly smaller distances make the field a
 tree whatever the rounding. Cells with no such neighbour sit on a *plateau* of equal distances
@@ -65,26 +75,37 @@ _TIGHT_RTOL = 2.0**-20
 
 DEFAULT_CHUNK = 4
 
-# Grids per chunk when ``vmap`` batches ``shortest_paths`` (None: the whole batch at once); set at
-# trace time by ``vmap_chunk``.
-_vmap_chunk: list[int | None] = [DEFAULT_CHUNK]
+# How distances are computed: "sweeps" (cone sweeping, the default) or "relaxation" (every cell
+# at once, pass after pass; see the module docstring).
+METHODS = ("sweeps", "relaxation")
+
+# Relaxation passes between two fixed-point checks: each check is a reduction and, inside a
+# while loop on an accelerator, a round trip to the host.
+RELAXATION_PASSES_PER_CHECK = 16
+
+# How ``vmap`` batches ``shortest_paths``: grids per chunk (None: the whole batch at once) and
+# the method; set at trace time by ``batching``.
+_batching: list[tuple[int | None, str]] = [(DEFAULT_CHUNK, "sweeps")]
 
 
 @contextlib.contextmanager
-def vmap_chunk(chunk: int | None):
+def batching(chunk: int | None, method: str = "sweeps"):
   """Within the context, ``vmap`` of :func:`shortest_paths` traces chunks of ``chunk`` grids
   (None: the whole batch as one chunk, e.g. on a GPU, where a loop over chunks of 4 would be a
-  chain of small kernels as long as the batch).
+  chain of small kernels as long as the batch), solved by ``method`` (:data:`METHODS`; the
+  distances and predecessors are the same either way).
 
   A trace-time setting: it applies to what is traced inside the context, so a jitted caller
   that enters it must key its own cache on it (the engine's ``SimConfig.strategy`` does).
   """
-  previous = _vmap_chunk[0]
-  _vmap_chunk[0] = chunk
+  if method not in METHODS:
+    raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+  previous = _batching[0]
+  _batching[0] = (chunk, method)
   try:
     yield
   finally:
-    _vmap_chunk[0] = previous
+    _batching[0] = previous
 
 
 class ShortestPaths(NamedTuple):
@@ -161,6 +182,20 @@ def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array, diagonal_cost: 
   diagonal = (jnp.minimum(jnp.minimum(at(-1, -1), at(-1, 1)), jnp.minimum(at(1, -1), at(1, 1)))
               + diagonal_cost[1:-1, 1:-1])
   return jnp.any(jnp.minimum(straight, diagonal) < at(0, 0), axis=(0, 1))
+
+
+def _relax_every_cell(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
+  """One synchronous pass: every cell of a framed ``[H + 2, W + 2, C]`` array becomes the min of
+  itself and its relaxation from its 8 neighbours (the sweeps' own sums, as in
+  :func:`_lowered_by_one_relaxation`); the frame is kept."""
+  height, width = dist.shape[0] - 2, dist.shape[1] - 2
+  at = lambda dr, dc: dist[1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
+  straight = (jnp.minimum(jnp.minimum(at(-1, 0), at(1, 0)), jnp.minimum(at(0, -1), at(0, 1)))
+              + cost[1:-1, 1:-1])
+  diagonal = (jnp.minimum(jnp.minimum(at(-1, -1), at(-1, 1)), jnp.minimum(at(1, -1), at(1, 1)))
+              + diagonal_cost[1:-1, 1:-1])
+  new = jnp.minimum(at(0, 0), jnp.minimum(straight, diagonal))
+  return jnp.pad(new, ((1, 1), (1, 1), (0, 0)), constant_values=jnp.inf)
 
 
 def _tight_predecessors(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
@@ -242,9 +277,15 @@ def _tight_predecessors(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Arr
   return pred.transpose(2, 0, 1)
 
 
-@functools.partial(jax.jit, static_argnames="max_sweeps")
-def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> ShortestPaths:
-  """Shortest paths for C grids at once; fields of the result have a leading axis C."""
+@functools.partial(jax.jit, static_argnames=("max_sweeps", "method"))
+def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int,
+                 method: str = "sweeps") -> ShortestPaths:
+  """Shortest paths for C grids at once; fields of the result have a leading axis C.
+
+  ``method`` "relaxation" runs passes of :func:`_relax_every_cell`, ``RELAXATION_PASSES_PER_CHECK``
+  between checks, at most ``max_sweeps * (H + W)`` passes (a round of sweeps makes ``2 (H + W)``
+  line steps); ``sweeps`` then counts passes instead of rounds.
+  """
   inf = jnp.float32(jnp.inf)
   framed_cost = jnp.pad(node_cost.transpose(1, 2, 0), ((1, 1), (1, 1), (0, 0)), constant_values=inf)
   # The barrier keeps XLA from fusing the interleaving transpose into every reader.
@@ -257,6 +298,10 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> Sh
   cols = lax.broadcasted_iota(jnp.int32, cost_rows.shape, 1)
   at_source = (rows == source[None, None, :, 0] + 1) & (cols == source[None, None, :, 1] + 1)
   dist = jnp.where(at_source, jnp.float32(0), inf)
+
+  if method == "relaxation":
+    return _relax_to_fixed_point(dist, cost_rows, diagonal_rows, source,
+                                 max_sweeps * (node_cost.shape[1] + node_cost.shape[2]))
 
   def one_round(dist):
     """The 4 sweeps, and whether one more relaxation would still lower a cell (checked on the
@@ -285,12 +330,37 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int) -> Sh
                        converged=~active)
 
 
+def _relax_to_fixed_point(dist, cost, diagonal_cost, source, max_passes: int) -> ShortestPaths:
+  """:func:`_solve_chunk` by synchronous relaxation passes, from the framed initial ``dist``."""
+  per_check = RELAXATION_PASSES_PER_CHECK
+
+  def not_done(carry):
+    _, passes, active, _ = carry
+    return jnp.any(active) & (passes < max_passes)
+
+  def body(carry):
+    dist, passes, active, count = carry
+    for _ in range(per_check):
+      dist = _relax_every_cell(dist, cost, diagonal_cost)
+    # The last pass changed nothing: a fixed point (passes before it may have).
+    changed = _lowered_by_one_relaxation(dist, cost, diagonal_cost)
+    count = count + jnp.where(active, per_check, 0)
+    return dist, passes + per_check, active & changed, count
+
+  init = (dist, jnp.int32(0), jnp.ones_like(source[:, 0], bool), jnp.zeros_like(source[:, 0]))
+  dist, _, active, passes = lax.while_loop(not_done, body, init)
+  pred = _tight_predecessors(dist, cost, diagonal_cost, source)
+  return ShortestPaths(dist=dist[1:-1, 1:-1].transpose(2, 0, 1), pred=pred, sweeps=passes,
+                       converged=~active)
+
+
 def shortest_paths_batched(
     node_cost: jax.Array,
     source: jax.Array,
     *,
     chunk: int = DEFAULT_CHUNK,
     max_sweeps: int | None = None,
+    method: str = "sweeps",
 ) -> ShortestPaths:
   """``shortest_paths`` for a batch of grids: a ``lax.map`` over chunks of ``chunk`` grids.
 
@@ -304,6 +374,8 @@ def shortest_paths_batched(
     source: i32[B, 2]; one (row, col) source per grid.
     chunk: static number of grids solved together (capped at B).
     max_sweeps: static bound on rounds per grid; None = ``default_max_sweeps(H, W)``.
+    method: static, ``"sweeps"`` or ``"relaxation"`` (:data:`METHODS`): the same results; see
+      the module docstring for which is faster where.
 
   Returns:
     A ``ShortestPaths`` whose fields have a leading batch axis B.
@@ -313,11 +385,13 @@ def shortest_paths_batched(
   batch, height, width = node_cost.shape
   if max_sweeps is None:
     max_sweeps = default_max_sweeps(height, width)
-  return _solve_in_chunks(node_cost, source, max(1, min(chunk, batch)), int(max_sweeps))
+  if method not in METHODS:
+    raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+  return _solve_in_chunks(node_cost, source, max(1, min(chunk, batch)), int(max_sweeps), method)
 
 
-@functools.partial(jax.jit, static_argnames=("chunk", "max_sweeps"))
-def _solve_in_chunks(node_cost, source, chunk: int, max_sweeps: int) -> ShortestPaths:
+@functools.partial(jax.jit, static_argnames=("chunk", "max_sweeps", "method"))
+def _solve_in_chunks(node_cost, source, chunk: int, max_sweeps: int, method: str) -> ShortestPaths:
   batch, height, width = node_cost.shape
   num_chunks = -(-batch // chunk)
   padding = num_chunks * chunk - batch
@@ -326,7 +400,7 @@ def _solve_in_chunks(node_cost, source, chunk: int, max_sweeps: int) -> Shortest
     node_cost = jnp.concatenate([node_cost, blocked])
     source = jnp.concatenate([source, jnp.zeros((padding, 2), jnp.int32)])
   result = lax.map(
-      lambda args: _solve_chunk(*args, max_sweeps=max_sweeps),
+      lambda args: _solve_chunk(*args, max_sweeps=max_sweeps, method=method),
       (node_cost.reshape(num_chunks, chunk, height, width), source.reshape(num_chunks, chunk, 2)),
   )
   return jax.tree.map(lambda x: x.reshape((num_chunks * chunk,) + x.shape[2:])[:batch], result)
@@ -348,8 +422,9 @@ def _single_grid_solver(max_sweeps: int):
       node_cost = jnp.broadcast_to(node_cost, (axis_size,) + node_cost.shape)
     if not source_batched:
       source = jnp.broadcast_to(source, (axis_size,) + source.shape)
-    chunk = _vmap_chunk[0] or axis_size
-    result = shortest_paths_batched(node_cost, source, chunk=chunk, max_sweeps=max_sweeps)
+    chunk, method = _batching[0]
+    result = shortest_paths_batched(node_cost, source, chunk=chunk or axis_size,
+                                    max_sweeps=max_sweeps, method=method)
     return result, ShortestPaths(True, True, True, True)
 
   return solve
@@ -364,7 +439,7 @@ def shortest_paths(
   """Shortest paths from one source cell over an 8-connected grid.
 
   Written for one grid; ``jax.vmap`` of it runs ``shortest_paths_batched`` (chunks of
-  ``DEFAULT_CHUNK`` grids, or as :func:`vmap_chunk` says), which is several times faster on CPU
+  ``DEFAULT_CHUNK`` grids by cone sweeping, or as :func:`batching` says), which is several times faster on CPU
   than batching the loops.
 
   Args:

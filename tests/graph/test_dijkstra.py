@@ -425,12 +425,12 @@ def test_extract_path_survives_a_cyclic_pred(transform):
   assert int(length) == 0
 
 
-def test_vmap_chunk_sets_how_vmap_batches_the_solver():
+def test_batching_sets_how_vmap_batches_the_solver():
   """The whole batch as one chunk (the lockstep strategy) solves every grid as chunks of 4 do."""
-  from jaxplore.graph import vmap_chunk
+  from jaxplore.graph import batching
   costs, sources = _batch(11)
   default = jax.jit(jax.vmap(shortest_paths))(costs, sources)
-  with vmap_chunk(None):
+  with batching(None):
     whole = jax.jit(jax.vmap(shortest_paths))(costs, sources)
     whole_jaxpr = str(jax.make_jaxpr(jax.vmap(shortest_paths))(costs, sources))
   chex.assert_trees_all_equal(whole, default)
@@ -438,3 +438,61 @@ def test_vmap_chunk_sets_how_vmap_batches_the_solver():
   default_jaxpr = str(jax.make_jaxpr(jax.vmap(shortest_paths))(costs, sources))
   assert re.search(r"length=1\b", whole_jaxpr) and not re.search(r"length=2\b", whole_jaxpr)
   assert re.search(r"length=2\b", default_jaxpr) and not re.search(r"length=1\b", default_jaxpr)
+  with pytest.raises(ValueError, match="method"):
+    with batching(None, "bellman"):
+      pass
+
+
+# --- relaxation (the accelerator's method) ---------------------------------------------------
+
+
+def _same_but_rounds(relaxed: ShortestPaths, swept: ShortestPaths):
+  """Distances and predecessors bit for bit; both converged (``sweeps`` counts different things)."""
+  np.testing.assert_array_equal(np.asarray(relaxed.dist), np.asarray(swept.dist))
+  np.testing.assert_array_equal(np.asarray(relaxed.pred), np.asarray(swept.pred))
+  assert np.all(np.asarray(relaxed.converged)) and np.all(np.asarray(swept.converged))
+
+
+_relaxed = jax.jit(lambda c, s: shortest_paths_batched(c, s, chunk=8, method="relaxation"))
+_swept = jax.jit(lambda c, s: shortest_paths_batched(c, s, chunk=8))
+
+
+def test_relaxation_reaches_the_sweeps_distances_bit_for_bit():
+  """Random costs (zeros, plateaus, blocked cells), room worlds, mazes and a zero-cost plateau
+  behind a gate: relaxation passes and cone sweeps stop at the same fixed point, and SciPy agrees
+  with it."""
+  rng = np.random.default_rng(21)
+  height = width = 25
+  grids = [random_costs(rng, height, width, p_zero, p_blocked, integer)
+           for p_zero, p_blocked, integer in [(0.0, 0.1, False), (0.3, 0.3, True), (0.8, 0.2, False),
+                                              (0.0, 0.0, False)]]
+  grids += [costs_from_walls(rng, room_world(rng, size=25, min_room=6)) for _ in range(2)]
+  grids.append(costs_from_walls(rng, maze_world(rng, cells=12, corridor=1)))
+  plateau = np.zeros((height, width), np.float32)
+  plateau[:, 8] = np.inf
+  plateau[8, 8] = 2.0
+  grids.append(plateau)
+  costs = np.stack(grids)
+  sources = np.stack([free_cell(rng, ~np.isfinite(c)) for c in costs]).astype(np.int32)
+  relaxed, swept = _relaxed(costs, sources), _swept(costs, sources)
+  _same_but_rounds(relaxed, swept)
+  for i in range(len(costs)):
+    assert_shortest_paths(costs[i], sources[i], jax.tree.map(lambda x: x[i], relaxed))
+
+
+def test_relaxation_under_vmap_and_its_bound():
+  """``batching(None, "relaxation")`` makes ``vmap(shortest_paths)`` relax; a bound below the
+  passes a maze needs is reported as non-convergence."""
+  from jaxplore.graph import batching
+  costs, sources = _batch(12, batch=5)
+  with batching(None, "relaxation"):
+    relaxed = jax.jit(jax.vmap(shortest_paths))(costs, sources)
+  _same_but_rounds(relaxed, _swept(costs, sources))
+  rng = np.random.default_rng(5)
+  wall = maze_world(rng, cells=12)
+  cost = costs_from_walls(rng, wall)[None]
+  source = free_cell(rng, wall)[None]
+  # max_sweeps=1 bounds relaxation at H + W passes, fewer than this maze's longest path needs.
+  bounded = shortest_paths_batched(cost, source, max_sweeps=1, method="relaxation")
+  assert not bool(bounded.converged[0])
+  assert int(bounded.sweeps[0]) >= sum(wall.shape)
