@@ -35,25 +35,38 @@ FIXED_BYTES = 128 << 20  # what a big grid adds whatever its size (the intercept
 GRID_BYTES_PER_CELL = 130  # the world (host and device), one robot's planning temporaries, and
 # the tables' per-robot map quality (float64 SSIM filters), one robot at a time
 ROBOT_BYTES_PER_CELL = 20  # a robot's belief, entropy map and blacklist, and their host copies
-LOCKSTEP_PLANNING_BYTES_PER_CELL = 32  # distances, predecessors, masks of one planning round
+# Lockstep (an accelerator): a robot's maps and the whole batch's per-stage temporaries, per cell
+# of the grid and robot; no lidar term (the scan's buffers are the batch's, kernel by kernel).
+# Fitted to the device's peak memory on one H200 (experiments/results/bench_accelerator_gpu.md):
+# 19 (office), 18.5 (Explore-Bench room) and 25 (lab, li2020 with its entropy map) bytes per
+# cell and robot between batch sizes; 32 leaves a margin.
+LOCKSTEP_BYTES_PER_CELL = 32
+# ... and per cell and robot of one planning chunk (jaxplore.planning.lockstep_plan_chunk): the
+# planner's temporaries (li2020's visible-gain masks: ~0.13 GiB for a chunk of 64 on lab).
+LOCKSTEP_PLANNING_BYTES_PER_CELL = 128
 
 
 def estimate_bytes(config: SimConfig, robots: int) -> int:
   """Peak memory of a run: a per-batch part (the world, planning temporaries, the tables) and,
-  per robot, its maps, per-step records and lidar buffers; ``lockstep`` also plans the whole
-  batch at once (one planning round's buffers per robot).
+  per robot, its maps, per-step records and lidar buffers (with ``lockstep``, its maps and the
+  batch's temporaries per cell, :data:`LOCKSTEP_BYTES_PER_CELL`, and one planning chunk's
+  temporaries, :data:`LOCKSTEP_PLANNING_BYTES_PER_CELL`).
 
   Within 25 % of the measured peak RSS (less the runtime's own) on 1000^2 to 4000^2 cells with
   1 and 4 robots and on 8000^2 cells with 1 robot, on a CPU
-  (``experiments/results/bench_memory.md``, where the constants were fitted); lockstep's
-  planning term is not measured here.
+  (``experiments/results/bench_memory.md``, where the constants were fitted). With lockstep,
+  1.1-4x the peak device memory measured on one GPU, 2-2.5x from 1,024 robots on
+  (``tests/test_memory.py``).
   """
   cells = config.height * config.width
   records = config.max_steps * 10 * 4
+  if config.strategy == "lockstep":
+    from jaxplore.planning import lockstep_plan_chunk
+    planning = lockstep_plan_chunk(config, robots) * cells * LOCKSTEP_PLANNING_BYTES_PER_CELL
+    per_robot = cells * LOCKSTEP_BYTES_PER_CELL + records
+    return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + planning + robots * per_robot
   lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
   per_robot = cells * ROBOT_BYTES_PER_CELL + records + lidar
-  if config.strategy == "lockstep":
-    per_robot += cells * LOCKSTEP_PLANNING_BYTES_PER_CELL
   return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + robots * per_robot
 
 

@@ -82,9 +82,9 @@ def test_same_keys_same_numbers(rooms, rooms_run):
 
 def test_lockstep_and_per_robot_strategies_end_in_the_same_states(rooms):
   """The strategy choice, forced on CPU: 3 noisy robots (sensor and odometry noise, so every
-  key matters) planned one at a time and in lockstep (every robot plans in one vmapped round,
-  the belief update a plain vmap) end 12 steps later in the same states, keys included. The
-  slow test below adds chunking, padding and li2020."""
+  key matters) planned one at a time and in lockstep (the robots that plan gathered in one
+  padded chunk, shortest paths by relaxation, the belief update a plain vmap) end 12 steps later
+  in the same states, keys included. The slow test below adds chunking and li2020."""
   robots = 3
   params = make_params("li2020", res=rooms.res, r_max=3.0, range_noise=0.05)
   world = sim.make_world(rooms, float(params.r_robot))
@@ -104,10 +104,10 @@ def test_lockstep_and_per_robot_strategies_end_in_the_same_states(rooms):
 @pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_a_robots_run_does_not_depend_on_how_plans_are_chunked(rooms):
   """With sensor and odometry noise every robot's key matters; 5 robots planned one at a time,
-  in chunks of 3 (the second chunk padded) and all at once in lockstep (the accelerator
-  strategy: every robot plans, those that need a plan keep it; the belief update a plain vmap)
-  must end in the same states, keys included. The plans go through a window: whole-grid
-  leftovers plan one by one, unpadded (in lockstep: in a second masked round)."""
+  in chunks of 3 (the second chunk padded) and in lockstep (the accelerator strategy: one padded
+  chunk, shortest paths by relaxation; the belief update a plain vmap) must end in the same
+  states, keys included. The plans go through a window: whole-grid leftovers plan one by one,
+  unpadded (in lockstep: in a second padded chunk)."""
   robots = 5
   params = make_params("li2020", res=rooms.res, r_max=3.0, range_noise=0.05)
   world = sim.make_world(rooms, float(params.r_robot))
