@@ -58,6 +58,8 @@ def _parse_args(argv=None):
       help="skip a batch whose run the same strategy's smaller batch projects longer than this")
   add("--seed", type=int, default=0)
   add("--out", default=None, help="markdown file (default results/bench_accelerator_<backend>.md)")
+  add("--explore-bench", default=str(EXPLORE_BENCH),
+      help="folder of the Explore-Bench map files (default: ../shared/maps/explore_bench)")
   return parser.parse_args(argv)
 
 
@@ -78,10 +80,10 @@ from jaxplore.resolve import resolve  # noqa: E402
 from jaxplore.runspec import RunSpec  # noqa: E402
 
 
-def load_grid(label: str):
+def load_grid(label: str, explore_bench=EXPLORE_BENCH):
   world = SETTINGS[label][0]
   if world.startswith("eb:"):
-    return load_map(EXPLORE_BENCH / f"{world[3:]}.yaml")
+    return load_map(Path(explore_bench) / f"{world[3:]}.yaml")
   return load_world(world)
 
 
@@ -154,23 +156,29 @@ def time_setting(grid, label: str, strategy: str, robots: int, args) -> dict:
               robot_steps=robot_steps, rate=robot_steps / t_all,
               chunk_rates=chunk_rates, done=int(np.asarray(state.done).sum()),
               coverage=float(np.asarray(records.coverage)[-1].mean()),
-              peak_gib=(peak_device_bytes() or 0) / 2**30)
+              peak_gib=(peak_device_bytes() or 0) / 2**30, estimate_gib=need / 2**30)
 
 
 HEADER = ("| setting | planner | grid | strategy | robots | devices | reset s | compile s | run s "
-          "| steps | robot-steps/s | per chunk | done | coverage | note |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| steps | robot-steps/s | per chunk | done | coverage | peak GiB (guard's estimate) | note |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def format_row(row: dict) -> str:
   if "rate" not in row:
     return (f"| {row['setting']} | {row['planner']} | {row['grid']} | {row['strategy']} "
-            f"| {row['robots']} | {row['devices']} | | | | | | | | | {row['note']} |")
+            f"| {row['robots']} | {row['devices']} | | | | | | | | | | {row['note']} |")
   per_chunk = " / ".join(f"{r:,.0f}" for r in row["chunk_rates"])
   return (f"| {row['setting']} | {row['planner']} | {row['grid']} | {row['strategy']} "
           f"| {row['robots']} | {row['devices']} | {row['reset_s']:.1f} | {row['compile_s']:.1f} "
           f"| {row['run_s']:.1f} | {row['steps']} | {row['rate']:,.0f} | {per_chunk} "
-          f"| {row['done']} | {row['coverage']:.3f} | {row.get('note', '')} |")
+          f"| {row['done']} | {row['coverage']:.3f} | {_peak(row)} | {row.get('note', '')} |")
+
+
+def _peak(row: dict) -> str:
+  """The device's peak memory (none on a CPU) and the memory guard's estimate, in GiB."""
+  peak = f"{row['peak_gib']:.1f}" if row.get("peak_gib") else "n/a"
+  return f"{peak} ({row['estimate_gib']:.1f})"
 
 
 def main(args):
@@ -191,7 +199,7 @@ def main(args):
   out.write_text("\n".join(lines) + "\n")
   print("\n".join(lines), flush=True)
   for label in args.settings.split(","):
-    grid = load_grid(label)
+    grid = load_grid(label, args.explore_bench)
     for strategy in args.strategies.split(","):
       last = None
       for robots in args.robots:
