@@ -1,4 +1,4 @@
-"""Benchmark: batched grid shortest paths (cone sweeping) versus SciPy's Dijkstra.
+"""Benchmark: batched grid shortest paths (cone sweeping, relaxation) versus SciPy's Dijkstra.
 
 Measures milliseconds per map for ``jaxplore.graph.shortest_paths_batched`` on seeded 256 x 256
 room-like worlds and mazes, for several batch sizes, next to ``scipy.sparse.csgraph.dijkstra``
@@ -9,6 +9,7 @@ room-like worlds and mazes, for several batch sizes, next to ``scipy.sparse.csgr
   python experiments/bench_dijkstra.py                   # 1 and 2 host devices, full table
   python experiments/bench_dijkstra.py --devices 2       # only the batch sharded over 2 devices
   python experiments/bench_dijkstra.py --chunks 2 4 8    # compare chunk sizes
+  python experiments/bench_dijkstra.py --methods sweeps relaxation   # the GPU's method too
 
 Each device count runs in its own subprocess, because the host device count is fixed when JAX
 starts (``XLA_FLAGS=--xla_force_host_platform_device_count=N``). With N > 1 the batch axis is
@@ -40,6 +41,8 @@ def _parse_args(argv=None):
   add("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
   add("--maps", nargs="+", default=["rooms", "maze"], choices=["rooms", "maze"])
   add("--chunks", type=int, nargs="+", default=[4], help="grids solved together per lax.map step")
+  add("--methods", nargs="+", default=["sweeps"], choices=["sweeps", "relaxation"],
+      help="solver methods (jaxplore.graph.dijkstra.METHODS; 'sweeps' is the CPU's)")
   add("--repeats", type=int, default=3, help="timed runs per setting (the best is kept)")
   add("--scipy-maps", type=int, default=32, help="maps timed with SciPy per map type")
   add("--max-batch-maze", type=int, default=256, help="largest maze batch timed")
@@ -205,9 +208,10 @@ def time_scipy(costs, sources, repeats):
   return 1e3 * best / len(costs), graphs
 
 
-def build_solver(devices: int, chunk: int):
+def build_solver(devices: int, chunk: int, method: str = "sweeps"):
   """A jitted batched solver; with devices > 1, the batch axis is sharded over a 1-D mesh."""
-  solve = lambda costs, sources: shortest_paths_batched(costs, sources, chunk=chunk)
+  solve = lambda costs, sources: shortest_paths_batched(costs, sources, chunk=chunk,
+                                                         method=method)
   if devices == 1:
     return jax.jit(solve), None
   mesh = Mesh(np.array(jax.devices()[:devices]), ("batch",))
@@ -261,36 +265,38 @@ def run_worker(args):
     scipy_ms, graphs = time_scipy(
         all_costs[: args.scipy_maps], all_sources[: args.scipy_maps], args.repeats
     )
-    for chunk in args.chunks:
-      for batch in batches:
-        if batch % devices:
-          continue  # B = 1 is timed by the 1-device worker
-        solver, sharding = build_solver(devices, chunk)
-        costs, sources = all_costs[:batch], all_sources[:batch]
-        compile_s, jax_ms, result = time_jax(solver, sharding, costs, sources, args.repeats)
-        sweeps = np.asarray(result.sweeps)
-        rows.append(dict(
-            kind=kind, batch=batch, devices=devices, chunk=min(chunk, batch // devices),
-            compile_s=compile_s, jax_ms=jax_ms, scipy_ms=scipy_ms, speedup=scipy_ms / jax_ms,
-            sweeps_mean=float(sweeps.mean()), sweeps_max=int(sweeps.max()),
-            converged=bool(np.all(np.asarray(result.converged))),
-            max_rel_err=check_against_scipy(result, graphs, sources, args.size),
-        ))
-        print(_format_row(rows[-1]), flush=True)
+    for method, chunk, batch in ((m, c, b) for m in args.methods for c in args.chunks
+                                 for b in batches):
+      if batch % devices:
+        continue  # B = 1 is timed by the 1-device worker
+      solver, sharding = build_solver(devices, chunk, method)
+      costs, sources = all_costs[:batch], all_sources[:batch]
+      compile_s, jax_ms, result = time_jax(solver, sharding, costs, sources, args.repeats)
+      sweeps = np.asarray(result.sweeps)
+      rows.append(dict(
+          kind=kind, method=method, batch=batch, devices=devices,
+          chunk=min(chunk, batch // devices),
+          compile_s=compile_s, jax_ms=jax_ms, scipy_ms=scipy_ms, speedup=scipy_ms / jax_ms,
+          sweeps_mean=float(sweeps.mean()), sweeps_max=int(sweeps.max()),
+          converged=bool(np.all(np.asarray(result.converged))),
+          max_rel_err=check_against_scipy(result, graphs, sources, args.size),
+      ))
+      print(_format_row(rows[-1]), flush=True)
   with open(args.worker_json, "w") as f:
     json.dump(rows, f)
 
 
 HEADER = (
-    "| map | B | devices | chunk | compile s | JAX ms/map | SciPy ms/map | SciPy/JAX "
-    "| mean sweeps | max sweeps | converged | max rel err |\n"
-    "|---|---|---|---|---|---|---|---|---|---|---|---|"
+    "| map | method | B | devices | chunk | compile s | JAX ms/map | SciPy ms/map | SciPy/JAX "
+    "| mean rounds | max rounds | converged | max rel err |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
 def _format_row(row):
   return (
-      f"| {row['kind']} | {row['batch']} | {row['devices']} | {row['chunk']} "
+      f"| {row['kind']} | {row.get('method', 'sweeps')} | {row['batch']} | {row['devices']} "
+      f"| {row['chunk']} "
       f"| {row['compile_s']:.2f} | {row['jax_ms']:.2f} | {row['scipy_ms']:.2f} "
       f"| {row['speedup']:.2f} | {row['sweeps_mean']:.1f} | {row['sweeps_max']} "
       f"| {row['converged']} | {row['max_rel_err']:.1e} |"
@@ -328,7 +334,7 @@ def main(args):
         rows += json.load(f)
   command = " ".join(["python experiments/bench_dijkstra.py", *sys.argv[1:]])
   lines = [
-      "# Grid shortest paths: cone sweeping (JAX) vs SciPy Dijkstra",
+      "# Grid shortest paths: cone sweeping or relaxation (JAX) vs SciPy Dijkstra",
       "",
       f"Command: `{command}`  ",
       f"Machine: {_cpu_name()}, {os.cpu_count()} cores; jax {jax.__version__}, "
@@ -339,7 +345,8 @@ def main(args):
       f"(first {args.scipy_maps} maps, `dijkstra(..., return_predecessors=True)`), timed in the "
       "same process as the JAX rows next to it.  ",
       "JAX ms/map = best of the timed runs after compilation, / B. 'max rel err' compares `dist` "
-      "with SciPy (float64) on the first 4 maps.",
+      "with SciPy (float64) on the first 4 maps. Rounds: of the 4 sweeps for `sweeps`, "
+      "relaxation passes for `relaxation`.",
       "",
       HEADER,
       *[_format_row(row) for row in rows],

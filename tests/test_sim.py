@@ -80,25 +80,39 @@ def test_same_keys_same_numbers(rooms, rooms_run):
   chex.assert_trees_all_equal(state.logodds, state2.logodds)
 
 
-def test_lockstep_and_per_robot_strategies_end_in_the_same_states(rooms):
-  """The strategy choice, forced on CPU: 3 noisy robots (sensor and odometry noise, so every
-  key matters) planned one at a time and in lockstep (the robots that plan gathered in one
-  padded chunk, shortest paths by relaxation, the belief update a plain vmap) end 12 steps later
-  in the same states, keys included. The slow test below adds chunking and li2020."""
+@pytest.fixture(scope="module")
+def strategy_runs(rooms):
+  """3 noisy robots (sensor and odometry noise, so every key matters), 12 steps with a budget
+  of 12, planned one at a time (``per_robot``) and in lockstep: the final state of each."""
   robots = 3
   params = make_params("li2020", res=rooms.res, r_max=3.0, range_noise=0.05)
   world = sim.make_world(rooms, float(params.r_robot))
   params = sim.broadcast_params(params, robots)
   keys = jax.random.split(jax.random.PRNGKey(5), robots)
-  finals = []
+  finals, state = {}, None
   for strategy in ("per_robot", "lockstep"):
     config = config_for(rooms.shape, rooms.res, params, max_steps=12, replan_every=6,
                         pose_noise=True, plan_window=32, plan_chunk=1, strategy=strategy,
                         planner="nearest_frontier")
-    state = sim.reset_batch(config, world, params, keys)
-    finals.append(sim.advance(config, world, params, state, 2)[0])
-  assert int(np.asarray(finals[0].steps).min()) == 12
-  chex.assert_trees_all_equal(finals[0], finals[1])
+    if state is None:  # one reset for both (a compile less): the slow test below resets each
+      state = sim.reset_batch(config, world, params, keys)
+    finals[strategy] = sim.advance(config, world, params, state, 2)[0]
+  return finals
+
+
+def test_lockstep_and_per_robot_strategies_end_in_the_same_states(strategy_runs):
+  """The strategy choice, forced on CPU: planned one at a time and in lockstep (the robots that
+  plan gathered in one padded chunk, shortest paths by relaxation, the belief update a plain
+  vmap), the robots end in the same states, keys included. The slow test below adds chunking and
+  li2020."""
+  assert int(np.asarray(strategy_runs["per_robot"].steps).min()) == 12
+  chex.assert_trees_all_equal(strategy_runs["per_robot"], strategy_runs["lockstep"])
+
+
+def test_step_budget_ends_in_timeout(strategy_runs):
+  state = strategy_runs["per_robot"]
+  assert np.all(np.asarray(state.reason) == sim.TIMEOUT)
+  assert np.all(np.asarray(state.steps) == 12)
 
 
 @pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
@@ -164,13 +178,6 @@ def test_gap_narrower_than_robot_ends_exhausted():
   state, records = sim.rollout(config, world, params, jax.random.split(jax.random.PRNGKey(2), ROBOTS), starts)
   assert np.all(np.asarray(state.reason) == sim.EXHAUSTED), np.asarray(state.reason)
   assert np.all(np.asarray(records.coverage)[-1] < 0.99)
-
-
-def test_step_budget_ends_in_timeout(rooms):
-  config, world, params = setup(rooms, max_steps=12)
-  state, records = sim.rollout(config, world, params, jax.random.split(jax.random.PRNGKey(3), ROBOTS))
-  assert np.all(np.asarray(state.reason) == sim.TIMEOUT)
-  assert np.all(np.asarray(state.steps) == 12)
 
 
 def test_step_eager_equals_jit():
