@@ -139,6 +139,28 @@ def test_a_robots_run_does_not_depend_on_how_plans_are_chunked(rooms):
   chex.assert_trees_all_equal(finals[0], finals[2])
 
 
+@pytest.mark.slow  # two li2020 programs: ~1 min to compile on 2 cores
+def test_li2020_plans_alike_in_both_strategies(rooms):
+  """li2020 (entropy map, visible gains, no window) with sensor and odometry noise: 3 robots
+  end 12 steps in the same states planned one at a time and in lockstep."""
+  from jaxplore.planners import get_planner
+  robots = 3
+  params = make_params("li2020", res=rooms.res, r_max=3.0, range_noise=0.05,
+                       planner=get_planner("li2020").defaults)
+  world = sim.make_world(rooms, float(params.r_robot))
+  params = sim.broadcast_params(params, robots)
+  keys = jax.random.split(jax.random.PRNGKey(7), robots)
+  finals = []
+  for strategy in ("per_robot", "lockstep"):
+    config = config_for(rooms.shape, rooms.res, params, max_steps=12, replan_every=4,
+                        pose_noise=True, strategy=strategy, planner="li2020",
+                        max_update_radius_cells=30)
+    state = sim.reset_batch(config, world, params, keys)
+    finals.append(sim.advance(config, world, params, state, 3)[0])
+  assert int(np.asarray(finals[0].steps).min()) == 12
+  chex.assert_trees_all_equal(finals[0], finals[1])
+
+
 # The engine's own parameters, with li2020 (the planner that also reads the entropy map); every
 # planner's weights alone are checked by tests/planners/test_conformance.py.
 @pytest.mark.parametrize("planner", ["li2020"])
