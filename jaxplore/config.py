@@ -154,10 +154,6 @@ class Params:
   r_max: Any = 15.0  # max range, m
   fov: Any = math.radians(190.0)  # field of view, rad
   range_noise: Any = 0.0  # std of Gaussian range noise, m
-  # With pose_noise, a beam integrated from the estimated pose marks a cell free only if it runs
-  # this far inside the cell before leaving it or ending (m): a beam that clips a wall cell's
-  # corner by the estimate's few-mm error does not see the wall free (sensor.mark_observed).
-  free_margin: Any = 0.01
   # belief (inverse sensor model, log-odds)
   l_free: Any = -1.0
   l_occ: Any = 2.0
@@ -296,8 +292,6 @@ def validate_params(params: Params, config: SimConfig) -> None:
         f"<= max_range_cells * res = {max_r:.3g} m (raise SimConfig.max_range_cells)")
   check("fov", p.fov, lambda a: (a > 0) & (a <= 2 * math.pi + 1e-6), "in (0, 2π]")
   check("range_noise", p.range_noise, lambda a: a >= 0, ">= 0")
-  check("free_margin", p.free_margin, lambda a: (a >= 0) & (a < 0.5 * config.res),
-        f"in [0, res / 2 = {0.5 * config.res:.3g} m)")
   check("l_free", p.l_free, lambda a: a < 0, "< 0 (log-odds of a free observation)")
   check("l_occ", p.l_occ, lambda a: a > 0, "> 0 (log-odds of an occupied observation)")
   check("l_min", p.l_min, lambda a: a < 0, "< 0")

@@ -160,9 +160,9 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       exact = params.range_noise <= 0
     end_rows, end_cols = sensor.end_cells(scan, est_uv[0], est_uv[1], exact, est_dirs,
                                           true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
+    carried = dict(true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs) if config.pose_noise else {}
     observed = sensor.mark_observed(sensor.empty_observation(shape), shape, scan, est_uv[0], est_uv[1],
-                                    end_rows, end_cols, n_cross, active, est_dirs,
-                                    margin=params.free_margin / res if config.pose_noise else None)
+                                    end_rows, end_cols, n_cross, active, est_dirs, **carried)
 
     # Relocalisation: enough beams end on occupied cells the belief already knows well.
     old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0)

@@ -382,12 +382,21 @@ def observation_grid(observed, shape):
 
 
 def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cross: int, active=True,
-                  dirs=None, margin=None):
+                  dirs=None, true_origin=None, true_dirs=None):
   """Writes what a scan says about the grid into ``observed``: 1 = seen free, 2 = seen occupied.
 
   Seen from (u0, v0) (where the robot *believes* it is) along ``scan.angles``: a cell a beam
   enters before its measured range is free, unless it is that beam's end cell; the end cell of a
   beam that hit is occupied (occupied wins over free). Cells outside the grid are dropped.
+
+  Integrated from an estimated pose (``true_origin`` given), the free cells are those the true
+  beam entered before the measured range, each carried into the estimate's frame as a rigid
+  motion of the scan would carry it (its centre's offset from the true origin, along and across
+  the true beam, laid along and across the estimate's beam), as :func:`end_cells` carries the
+  hits. Re-traced from the estimate instead, a beam a few mm off clips the corner of a wall cell
+  the true beam passed, or enters the face it ended on, and walls seen at grazing incidence are
+  eaten away cell by cell (willow's diagonal walls were). An error of a cell or more leaves holes
+  in the carried cells (two cells landing on one); the next scans fill them.
 
   Args:
     observed: int8 observation in the layout of :func:`empty_observation`.
@@ -395,11 +404,8 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
     end_rows, end_cols: i32[n] from :func:`end_cells`.
     active: traced bool; when False nothing is written.
     dirs: :func:`directions` of ``scan.angles``, if the caller has them (see :func:`measure`).
-    margin: None, or how far (cells; traced) a beam must run inside a cell before it leaves the
-      cell or its range ends for the cell to be marked free. For a scan integrated from an
-      estimated pose: the true beam passed a wall cell's corner, or ended on its face, but the
-      estimate's beam, a few mm off, clips the cell by less than its error; marked free, such
-      cells eat into walls (a diagonal wall seen free along its staircase).
+    true_origin, true_dirs: the pose (cells) and beam directions the scan was cast from, when
+      they are not (u0, v0) and ``dirs``.
   """
   du, dv = directions(scan.angles) if dirs is None else dirs
   sink = observed.shape[0] - 1
@@ -412,13 +418,21 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
   end_ok = scan.hit & _inside(end_rows, end_cols, shape) & ~own
   end_index = jnp.where(end_ok, _observation_index(end_rows, end_cols, shape), -1)
 
+  carried = true_origin is not None
+  tu, tv = true_origin if carried else (u0, v0)
+  tdu, tdv = (du, dv) if true_dirs is None else true_dirs
+
   def free_index(rows, cols, t, ranges, end_index, beam_dirs=None):
+    if carried and beam_dirs is not None:
+      (bdu, bdv), (edu, edv) = beam_dirs
+      centre_u = cols.astype(jnp.float32) + 0.5 - tu
+      centre_v = rows.astype(jnp.float32) + 0.5 - tv
+      along = centre_u * bdu + centre_v * bdv
+      across = centre_v * bdu - centre_u * bdv  # along (-dv, du)
+      cols = jnp.floor(u0 + along * edu - across * edv).astype(jnp.int32)
+      rows = jnp.floor(v0 + along * edv + across * edu).astype(jnp.int32)
     index = _observation_index(rows, cols, shape)
     free = (t < ranges) & _inside(rows, cols, shape) & (index != end_index)
-    if margin is not None and beam_dirs is not None:
-      past = t + margin
-      free &= (past < ranges) & (jnp.floor(u0 + past * beam_dirs[0]).astype(jnp.int32) == cols) & (
-          jnp.floor(v0 + past * beam_dirs[1]).astype(jnp.int32) == rows)
     return jnp.where(free, index, sink)
 
   start_rows = jnp.broadcast_to(start_row, scan.ranges.shape)
@@ -429,18 +443,19 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
   group, block_size = MARK_GROUP, MARK_BLOCK
   if n_cross <= MARK_WHOLE_RANGE:
     group, block_size = scan.ranges.shape[0], n_cross
-  grouped = tuple(_groups(a, group) for a in (du, dv, scan.ranges, end_index))
+  grouped = tuple(_groups(a, group) for a in (tdu, tdv, du, dv, scan.ranges, end_index))
   block = jnp.arange(block_size, dtype=jnp.int32)[:, None]
 
   def walk_group(g, observed):
-    du, dv, ranges, end_index = (a[g] for a in grouped)
-    b = beams(u0, v0, None, (du, dv))
+    tdu, tdv, du, dv, ranges, end_index = (a[g] for a in grouped)
+    # The walk follows the beams as cast (from the truth when the scan is carried).
+    b = beams(tu, tv, None, (tdu, tdv))
     furthest = jnp.max(ranges)
 
     def body(carry):
       k0, observed = carry
-      (t_x, row_x, col_x), (t_y, row_y, col_y) = _crossings(b, u0, v0, (k0 + block).astype(jnp.float32))
-      beam_dirs = (du[None], dv[None])
+      (t_x, row_x, col_x), (t_y, row_y, col_y) = _crossings(b, tu, tv, (k0 + block).astype(jnp.float32))
+      beam_dirs = ((tdu[None], tdv[None]), (du[None], dv[None]))
       index = jnp.concatenate([free_index(row_x, col_x, t_x, ranges[None], end_index[None], beam_dirs),
                                free_index(row_y, col_y, t_y, ranges[None], end_index[None], beam_dirs)])
       return k0 + block_size, observed.at[index.ravel()].set(1, mode=PROMISE_IN_BOUNDS)

@@ -326,89 +326,78 @@ SIZE = 40
 
 
 @functools.partial(jax.jit, static_argnums=7)
-def _observe_from_estimate(truth, u, v, eu, ev, angles, est_angles, margin):
-  """The observation grid of a scan cast from (u, v) and integrated from the estimate (eu, ev)."""
+def _observe_from_estimate(truth, u, v, eu, ev, angles, est_angles, carried):
+  """The observation grid of a scan cast from (u, v) and integrated from the estimate (eu, ev):
+  its free cells carried from the true beams (``carried``, the engine's way) or re-traced from
+  the estimate."""
   shape = (SIZE, SIZE)
   scan = sensor.measure(truth, shape, u, v, angles, 30.0, 31)._replace(angles=est_angles)
+  true_dirs = sensor.directions(angles)
   rows, cols = sensor.end_cells(scan, eu, ev, jnp.bool_(False), true_origin=(u, v),
-                                true_dirs=sensor.directions(angles))
+                                true_dirs=true_dirs)
+  frame = dict(true_origin=(u, v), true_dirs=true_dirs) if carried else {}
   observed = sensor.mark_observed(sensor.empty_observation(shape), shape, scan, eu, ev, rows, cols, 31,
-                                  margin=margin)
+                                  **frame)
   return sensor.observation_grid(observed, shape)
 
 
 def test_a_diagonal_wall_seen_from_a_hair_off_estimate_is_not_seen_free():
   # A staircase (diagonal) wall two cells thick, scanned from cell centres (where the engine's
   # robots stand) and integrated from estimates off by the few mm (0.005 cells, 1e-4 rad) the
-  # relocalisation leaves. Beams that in truth passed a wall cell's corner, or ended on the face
-  # of its neighbour, clip that cell by a hair in the estimate's frame: without a margin some
-  # wall cells are marked free (willow's diagonal walls were eaten away this way, and nearest
-  # frontier chased the "frontiers" inside them). Oracle: the truth.
+  # relocalisation leaves. Re-traced from the estimate, beams that in truth passed a wall cell's
+  # corner, or ended on the face of its neighbour, clip that cell by a hair, and some wall cells
+  # are marked free (willow's diagonal walls were eaten away this way, and nearest frontier
+  # chased the "frontiers" inside them). Carried from the true beams, none is. Oracle: the truth.
   occupied = np.zeros((SIZE, SIZE), bool)
   for i in range(SIZE - 1):
     occupied[i, i] = occupied[i, i + 1] = True
   truth = sensor.frame_truth(jnp.asarray(occupied))
   rng = np.random.default_rng(7)
   angles = np.linspace(-math.pi, math.pi, 1441)[:-1]
-  walls_seen_free = {None: 0, 0.1: 0}
-  cells_seen_free = {None: 0, 0.1: 0}
+  walls_seen_free = {False: 0, True: 0}
+  cells_seen_free = {False: 0, True: 0}
   for u0, v0 in ((8.5, 20.5), (12.5, 30.5), (3.5, 33.5), (25.5, 36.5)):
     for du, dv, dtheta in rng.uniform(-1, 1, (4, 3)) * [5e-3, 5e-3, 1e-4]:
-      for margin in walls_seen_free:
+      for carried in walls_seen_free:
         grid = np.asarray(_observe_from_estimate(
             truth, jnp.float32(u0), jnp.float32(v0), jnp.float32(u0 + du), jnp.float32(v0 + dv),
-            jnp.asarray(angles, jnp.float32), jnp.asarray(angles + dtheta, jnp.float32), margin))
-        walls_seen_free[margin] += int((occupied & (grid == 1)).sum())
-        cells_seen_free[margin] += int((~occupied & (grid == 1)).sum())
-  assert walls_seen_free[0.1] == 0
-  assert walls_seen_free[None] > 0  # the clipping the margin guards against happens at these errors
-  # The margin drops only clipped cells: free space is still seen (other beams cross it fully).
-  assert cells_seen_free[0.1] >= 0.99 * cells_seen_free[None]
+            jnp.asarray(angles, jnp.float32), jnp.asarray(angles + dtheta, jnp.float32), carried))
+        walls_seen_free[carried] += int((occupied & (grid == 1)).sum())
+        cells_seen_free[carried] += int((~occupied & (grid == 1)).sum())
+  assert walls_seen_free[True] == 0
+  assert walls_seen_free[False] > 0  # the clipping happens at these errors
+  # Carrying loses no free space: the same free cells are seen.
+  assert cells_seen_free[True] >= 0.99 * cells_seen_free[False]
 
 
-def _cells_run_through(u0, v0, angle, length, margin, step=1e-3):
-  """Cells a beam's points, sampled every ``step`` cells up to ``length``, stay in for more than
-  ``margin`` cells in a row (the cell it starts in always)."""
-  t = np.arange(0.0, length, step)
-  if t.size == 0:
-    return set()
-  rows = np.floor(v0 + t * math.sin(angle)).astype(int)
-  cols = np.floor(u0 + t * math.cos(angle)).astype(int)
-  new = np.r_[True, (rows[1:] != rows[:-1]) | (cols[1:] != cols[:-1])]
-  starts = np.nonzero(new)[0]
-  runs = np.diff(np.r_[starts, t.size]) * step
-  return {(rows[a], cols[a]) for a, run in zip(starts, runs) if run > margin or a == 0}
-
-
-def test_mark_observed_with_a_margin_frees_only_cells_a_beam_runs_that_far_inside():
-  # Reference by fine sampling along each beam (as integrated: from the estimate, at the
-  # estimate's angles, up to the measured range): a cell is free when the beam's points stay in
-  # it for more than the margin, and it is not the beam's end cell.
-  h, w, margin = 26, 21, 0.1
-  rng, occupied, truth = _random_world(11, h, w, 0.1)
-
-  @jax.jit
-  def observe(u, v, a, offset):
-    scan = sensor.measure(truth, (h, w), u, v, a, 12.0, 13)._replace(angles=a + offset[2])
-    eu, ev = u + offset[0], v + offset[1]
-    end_rows, end_cols = sensor.end_cells(scan, eu, ev, jnp.bool_(False), true_origin=(u, v),
-                                          true_dirs=sensor.directions(a))
-    observed = sensor.mark_observed(sensor.empty_observation((h, w)), (h, w), scan, eu, ev, end_rows,
-                                    end_cols, 13, margin=jnp.float32(margin))
-    return scan, end_rows, end_cols, sensor.observation_grid(observed, (h, w))
-
-  for u0, v0, angles in _awkward_poses(rng, np.argwhere(~occupied), 4):
-    offset = rng.normal(0, [0.01, 0.01, 1e-3]).astype(np.float32)
-    scan, end_rows, end_cols, grid = observe(jnp.float32(u0), jnp.float32(v0), jnp.asarray(angles),
-                                              jnp.asarray(offset))
-    eu, ev = np.float32(u0) + offset[0], np.float32(v0) + offset[1]
-    end_rows, end_cols, hit = (np.asarray(a) for a in (end_rows, end_cols, scan.hit))
-    expected = np.zeros((h, w), np.int8)
-    for b, (angle, length) in enumerate(zip(np.asarray(angles) + offset[2], np.asarray(scan.ranges))):
-      for r, c in _cells_run_through(float(eu), float(ev), float(angle), float(length), margin):
-        if 0 <= r < h and 0 <= c < w and not (hit[b] and (r, c) == (end_rows[b], end_cols[b])):
-          expected[r, c] = 1
-    own = (end_rows == np.floor(ev)) & (end_cols == np.floor(eu))
-    ends_inside = hit & (end_rows >= 0) & (end_rows < h) & (end_cols >= 0) & (end_cols < w) & ~own
-    expected[end_rows[ends_inside], end_cols[ends_inside]] = 2
-    np.testing.assert_array_equal(np.asarray(grid), expected)
+@pytest.mark.parametrize("shift, dtheta", [((3, -2), 0.0), ((0, 0), math.pi / 2)])
+def test_a_scan_integrated_from_a_moved_estimate_moves_with_it(shift, dtheta):
+  """An estimate moved by whole cells, or turned by a right angle about the robot's cell centre,
+  sees the true scan's observation moved the same way, free cells and hits alike (the rigid
+  motion maps cell centres to cell centres). Oracle: the observation integrated at the true
+  pose, moved with NumPy."""
+  rng, occupied, truth = _random_world(13, SIZE, SIZE, 0.12)
+  occupied = np.asarray(occupied)
+  u0, v0 = 20.5, 19.5
+  occupied[18:22, 18:23] = False  # room to stand
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  angles = jnp.asarray(np.linspace(-math.pi, math.pi, 721)[:-1], jnp.float32)
+  exact = np.asarray(_observe_from_estimate(truth, jnp.float32(u0), jnp.float32(v0), jnp.float32(u0),
+                                            jnp.float32(v0), angles, angles, True))
+  du, dv = shift
+  moved = np.asarray(_observe_from_estimate(
+      truth, jnp.float32(u0), jnp.float32(v0), jnp.float32(u0 + du), jnp.float32(v0 + dv), angles,
+      angles + jnp.float32(dtheta), True))
+  rows, cols = np.indices(exact.shape).reshape(2, -1)
+  if dtheta:  # (u, v) - origin turned by +90 degrees: (-(v - v0), u - u0)
+    new_cols = np.floor(u0 - (rows + 0.5 - v0)).astype(int)
+    new_rows = np.floor(v0 + (cols + 0.5 - u0)).astype(int)
+  else:
+    new_rows, new_cols = rows + dv, cols + du
+  inside = (new_rows >= 0) & (new_rows < SIZE) & (new_cols >= 0) & (new_cols < SIZE)
+  # Compared where the moved cell comes from inside the grid (beyond its edge the truth's frame
+  # counts as walls, which the exact observation drops and the moved one may keep).
+  got = moved[new_rows[inside], new_cols[inside]]
+  want = exact[rows[inside], cols[inside]]
+  assert (want == 1).sum() > 200 and (want == 2).sum() > 20
+  np.testing.assert_array_equal(got, want)
