@@ -435,9 +435,12 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
     free = (t < ranges) & _inside(rows, cols, shape) & (index != end_index)
     return jnp.where(free, index, sink)
 
-  start_rows = jnp.broadcast_to(start_row, scan.ranges.shape)
-  start_cols = jnp.broadcast_to(start_col, scan.ranges.shape)
-  start = free_index(start_rows, start_cols, 0.0, jnp.where(active, scan.ranges, 0.0), end_index)
+  # The cell the robot stands in is free: carried too, from the cell it truly stands in (a robot
+  # beside a wall, its estimate a hair across the cell edge, must not see the wall cell free).
+  start_rows = jnp.broadcast_to(jnp.floor(tv).astype(jnp.int32), scan.ranges.shape)
+  start_cols = jnp.broadcast_to(jnp.floor(tu).astype(jnp.int32), scan.ranges.shape)
+  start = free_index(start_rows, start_cols, 0.0, jnp.where(active, scan.ranges, 0.0), end_index,
+                     ((tdu, tdv), (du, dv)))
   observed = observed.at[start].set(1, mode=PROMISE_IN_BOUNDS)
 
   group, block_size = MARK_GROUP, MARK_BLOCK

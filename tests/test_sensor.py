@@ -370,6 +370,22 @@ def test_a_diagonal_wall_seen_from_a_hair_off_estimate_is_not_seen_free():
   assert cells_seen_free[True] >= 0.99 * cells_seen_free[False]
 
 
+def test_a_robot_beside_a_wall_whose_estimate_crosses_into_it_does_not_see_it_free():
+  """A robot 2 mm from a wall cell's edge, its estimate 3 mm across it: the cell it stands in
+  is carried from where it truly stands, so the wall cell stays unseen-free (before, the
+  estimate's own cell was marked free at every scan: willow's walls beside the paths were freed
+  this way)."""
+  occupied = np.zeros((SIZE, SIZE), bool)
+  occupied[:, 10] = True
+  truth = sensor.frame_truth(jnp.asarray(occupied))
+  angles = jnp.asarray(np.linspace(-math.pi, math.pi, 361)[:-1], jnp.float32)
+  carried, retraced = (np.asarray(_observe_from_estimate(
+      truth, jnp.float32(9.998), jnp.float32(20.5), jnp.float32(10.001), jnp.float32(20.5), angles,
+      angles, carry)) for carry in (True, False))
+  assert not (carried[:, 10] == 1).any() and carried[20, 9] == 1
+  assert retraced[20, 10] == 1  # the estimate's own cell, the wall
+
+
 @pytest.mark.parametrize("shift, dtheta", [((3, -2), 0.0), ((0, 0), math.pi / 2)])
 def test_a_scan_integrated_from_a_moved_estimate_moves_with_it(shift, dtheta):
   """An estimate moved by whole cells, or turned by a right angle about the robot's cell centre,
