@@ -312,6 +312,18 @@ def cast(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=Non
   return scan, trace(u0, v0, angles, n_cross)
 
 
+def _carried(offset_u, offset_v, true_dirs, origin, dirs, ahead=0.0):
+  """Where a point at ``offset`` (cells) from a true beam's reference point lands when the scan
+  is moved rigidly onto the beam (``dirs``) from ``origin``, ``ahead`` cells along it: its
+  offset along and across the true beam, laid along and across the moved one."""
+  tdu, tdv = true_dirs
+  du, dv = dirs
+  along = offset_u * tdu + offset_v * tdv
+  across = offset_v * tdu - offset_u * tdv  # along (-dv, du)
+  return (origin[0] + (ahead + along) * du - across * dv,
+          origin[1] + (ahead + along) * dv + across * du)
+
+
 def end_cells(scan: Scan, u0, v0, exact_hits, dirs=None, true_origin=None, true_dirs=None):
   """(rows, cols) i32[n]: the cell each beam's measured range ends in, seen from (u0, v0).
 
@@ -335,12 +347,9 @@ def end_cells(scan: Scan, u0, v0, exact_hits, dirs=None, true_origin=None, true_
   du, dv = directions(scan.angles) if dirs is None else dirs
   tu, tv = (u0, v0) if true_origin is None else true_origin
   tdu, tdv = (du, dv) if true_dirs is None else true_dirs
-  centre_u = scan.hit_cols.astype(jnp.float32) + 0.5 - (tu + scan.true_ranges * tdu)
-  centre_v = scan.hit_rows.astype(jnp.float32) + 0.5 - (tv + scan.true_ranges * tdv)
-  along = centre_u * tdu + centre_v * tdv
-  across = centre_v * tdu - centre_u * tdv  # along (-dv, du)
-  end_u = u0 + (scan.ranges + along) * du - across * dv
-  end_v = v0 + (scan.ranges + along) * dv + across * du
+  end_u, end_v = _carried(scan.hit_cols.astype(jnp.float32) + 0.5 - (tu + scan.true_ranges * tdu),
+                          scan.hit_rows.astype(jnp.float32) + 0.5 - (tv + scan.true_ranges * tdv),
+                          (tdu, tdv), (u0, v0), (du, dv), scan.ranges)
   rows = jnp.where(exact_hits, scan.hit_rows, jnp.floor(end_v).astype(jnp.int32))
   cols = jnp.where(exact_hits, scan.hit_cols, jnp.floor(end_u).astype(jnp.int32))
   return rows, cols
@@ -424,13 +433,9 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
 
   def free_index(rows, cols, t, ranges, end_index, beam_dirs=None):
     if carried and beam_dirs is not None:
-      (bdu, bdv), (edu, edv) = beam_dirs
-      centre_u = cols.astype(jnp.float32) + 0.5 - tu
-      centre_v = rows.astype(jnp.float32) + 0.5 - tv
-      along = centre_u * bdu + centre_v * bdv
-      across = centre_v * bdu - centre_u * bdv  # along (-dv, du)
-      cols = jnp.floor(u0 + along * edu - across * edv).astype(jnp.int32)
-      rows = jnp.floor(v0 + along * edv + across * edu).astype(jnp.int32)
+      u, v = _carried(cols.astype(jnp.float32) + 0.5 - tu, rows.astype(jnp.float32) + 0.5 - tv,
+                      beam_dirs[0], (u0, v0), beam_dirs[1])
+      cols, rows = jnp.floor(u).astype(jnp.int32), jnp.floor(v).astype(jnp.int32)
     index = _observation_index(rows, cols, shape)
     free = (t < ranges) & _inside(rows, cols, shape) & (index != end_index)
     return jnp.where(free, index, sink)
