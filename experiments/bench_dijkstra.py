@@ -11,6 +11,9 @@ room-like worlds and mazes, for several batch sizes, next to ``scipy.sparse.csgr
   python experiments/bench_dijkstra.py --chunks 2 4 8    # compare chunk sizes
   python experiments/bench_dijkstra.py --methods sweeps relaxation   # the GPU's method too
 
+``sweeps-only`` is ``sweeps`` without the tile-by-tile finish (``tiles_after_rounds=0``), timed
+beside it to show what the finish buys on mazes.
+
 Each device count runs in its own subprocess, because the host device count is fixed when JAX
 starts (``XLA_FLAGS=--xla_force_host_platform_device_count=N``). With N > 1 the batch axis is
 sharded over a ``Mesh`` with ``jax.shard_map``, and each device runs the chunked solver on its
@@ -41,8 +44,10 @@ def _parse_args(argv=None):
   add("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
   add("--maps", nargs="+", default=["rooms", "maze"], choices=["rooms", "maze"])
   add("--chunks", type=int, nargs="+", default=[4], help="grids solved together per lax.map step")
-  add("--methods", nargs="+", default=["sweeps"], choices=["sweeps", "relaxation"],
-      help="solver methods (jaxplore.graph.dijkstra.METHODS; 'sweeps' is the CPU's)")
+  add("--methods", nargs="+", default=["sweeps", "sweeps-only"],
+      choices=["sweeps", "sweeps-only", "relaxation"],
+      help="solver methods (jaxplore.graph.dijkstra.METHODS; 'sweeps' is the CPU's, which "
+           "finishes unsettled grids tile by tile; 'sweeps-only' never does)")
   add("--repeats", type=int, default=3, help="timed runs per setting (the best is kept)")
   add("--scipy-maps", type=int, default=32, help="maps timed with SciPy per map type")
   add("--max-batch-maze", type=int, default=256, help="largest maze batch timed")
@@ -210,8 +215,9 @@ def time_scipy(costs, sources, repeats):
 
 def build_solver(devices: int, chunk: int, method: str = "sweeps"):
   """A jitted batched solver; with devices > 1, the batch axis is sharded over a 1-D mesh."""
-  solve = lambda costs, sources: shortest_paths_batched(costs, sources, chunk=chunk,
-                                                         method=method)
+  options = dict(method="sweeps", tiles_after_rounds=0) if method == "sweeps-only" else (
+      dict(method=method))
+  solve = lambda costs, sources: shortest_paths_batched(costs, sources, chunk=chunk, **options)
   if devices == 1:
     return jax.jit(solve), None
   mesh = Mesh(np.array(jax.devices()[:devices]), ("batch",))
@@ -345,8 +351,9 @@ def main(args):
       f"(first {args.scipy_maps} maps, `dijkstra(..., return_predecessors=True)`), timed in the "
       "same process as the JAX rows next to it.  ",
       "JAX ms/map = best of the timed runs after compilation, / B. 'max rel err' compares `dist` "
-      "with SciPy (float64) on the first 4 maps. Rounds: of the 4 sweeps for `sweeps`, "
-      "relaxation passes for `relaxation`.",
+      "with SciPy (float64) on the first 4 maps. Rounds: of the 4 sweeps for `sweeps-only`; for "
+      "`sweeps`, with the tile-by-tile finish counted in whole-grid rounds (a round's worth of "
+      "tile visits = 1); relaxation passes for `relaxation`.",
       "",
       HEADER,
       *[_format_row(row) for row in rows],

@@ -118,6 +118,7 @@ def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
   return planners_base.PlannerContext(
       height=height, width=width, res=config.res, path_capacity=config.path_capacity,
       dijkstra_max_sweeps=config.dijkstra_max_sweeps,
+      dijkstra_tiles_after_rounds=config.dijkstra_tiles_after_rounds,
       max_inflation_cells=config.max_inflation_cells, max_steps=config.max_steps,
       r_e_cells=config.r_e / config.res if keeps_entropy_map(config) else 0.0,
       settings=config.planner_settings)

@@ -39,6 +39,7 @@ class PlannerContext:
     res: metres per cell.
     path_capacity: waypoints a :class:`Plan` holds.
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path solver.
+    dijkstra_tiles_after_rounds: the solver's ``tiles_after_rounds`` (0 = never).
     max_inflation_cells: bound of the robot radius in cells.
     max_steps: the episode's step budget (for capacity checks before compute).
     r_e_cells: Li et al.'s effective radius R_e (Eq 5-6) in cells, the radius of the entropy
@@ -51,6 +52,7 @@ class PlannerContext:
   res: float
   path_capacity: int = 256
   dijkstra_max_sweeps: int = 512
+  dijkstra_tiles_after_rounds: int = 0
   max_inflation_cells: int = 3
   max_steps: int = 2000
   r_e_cells: float = 0.0

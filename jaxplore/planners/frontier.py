@@ -24,7 +24,8 @@ def reachable_paths(config, view: base.BeliefView, robot: base.RobotView, node_c
 
   Returns (dist in metres f32[H, W], pred i32[H, W]).
   """
-  sp = shortest_paths(node_cost, robot.cell, max_sweeps=config.dijkstra_max_sweeps)
+  sp = shortest_paths(node_cost, robot.cell, max_sweeps=config.dijkstra_max_sweeps,
+                      tiles_after_rounds=config.dijkstra_tiles_after_rounds)
   dist, pred = extend_into(sp.dist, sp.pred, view.free & ~view.traversable,
                            config.max_inflation_cells + 1)
   return dist * config.res, pred

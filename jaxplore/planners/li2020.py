@@ -609,7 +609,8 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   h, w = config.height, config.width
   b_e, b_g = boundaries(view, weights["tau_e"])
   sp = shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]), robot.cell,
-                      max_sweeps=config.dijkstra_max_sweeps)
+                      max_sweeps=config.dijkstra_max_sweeps,
+                      tiles_after_rounds=config.dijkstra_tiles_after_rounds)
   reachable = jnp.isfinite(sp.dist).ravel()
   gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
   sums, cov, _ = tree_quantities(config, view, robot, params, sp.pred, gains)

@@ -496,3 +496,63 @@ def test_relaxation_under_vmap_and_its_bound():
   bounded = shortest_paths_batched(cost, source, max_sweeps=1, method="relaxation")
   assert not bool(bounded.converged[0])
   assert int(bounded.sweeps[0]) >= sum(wall.shape)
+
+
+# --- finished tile by tile (mazes) -----------------------------------------------------------
+
+
+def _corner_passage(size=37):
+  """Walls but for a serpentine in the first 16 x 16 tile from (0, 0) to (15, 15) and an open
+  room beyond (16, 16): the room is reached only by the diagonal step across the tile corner."""
+  cost = np.full((size, size), np.inf, np.float32)
+  for r in range(0, 16, 2):
+    cost[r, :15] = 1.0
+    if r < 14:
+      cost[r + 1, 14 if r % 4 == 0 else 0] = 1.0
+  cost[14, 15] = cost[15, 15] = 1.0
+  cost[16:, 16:] = 1.0
+  return cost
+
+
+def _tile_worlds(seed=31, size=37):
+  """37 x 37 grids (3 x 3 tiles of 16, the last row and column mostly padding): mazes with
+  1- and 2-cell corridors, a maze with zero-cost stretches (plateaus), a maze whose source is
+  a wall cell, random costs with zeros and walls, a room world, and a room reached only across
+  a tile corner (source at (0, 0))."""
+  rng = np.random.default_rng(seed)
+  mazes = [costs_from_walls(rng, maze_world(rng, cells=18, corridor=1)),
+           costs_from_walls(rng, maze_world(rng, cells=12, corridor=2))]
+  plateaus = costs_from_walls(rng, maze_world(rng, cells=18, corridor=1))
+  plateaus[np.isfinite(plateaus) & (rng.random(plateaus.shape) < 0.4)] = 0.0
+  walled_source = costs_from_walls(rng, maze_world(rng, cells=18, corridor=1))
+  grids = mazes + [plateaus, walled_source, random_costs(rng, size, size, p_zero=0.3),
+                   costs_from_walls(rng, room_world(rng, size=size, min_room=8))]
+  sources = [free_cell(rng, ~np.isfinite(g)) for g in grids]
+  sources[3] = np.argwhere(~np.isfinite(walled_source[1:-1, 1:-1]))[0].astype(np.int32) + 1
+  grids.append(_corner_passage(size))
+  sources.append(np.zeros(2, np.int32))
+  return np.stack(grids), np.stack(sources).astype(np.int32)
+
+
+def test_tile_by_tile_reaches_the_sweeps_distances_bit_for_bit():
+  """Finished tile by tile from the first round on, every grid ends where the sweeps alone end,
+  bit for bit, and SciPy agrees; the mazes take fewer whole-grid rounds' worth of work."""
+  costs, sources = _tile_worlds()
+  tiled = jax.jit(lambda c, s: shortest_paths_batched(c, s, tiles_after_rounds=1))(costs, sources)
+  alone = jax.jit(lambda c, s: shortest_paths_batched(c, s, tiles_after_rounds=0))(costs, sources)
+  _same_but_rounds(tiled, alone)
+  for i in range(len(costs)):
+    assert_shortest_paths(costs[i], sources[i], jax.tree.map(lambda x: x[i], tiled))
+  assert float(tiled.dist[3][tuple(sources[3])]) == 0.0
+  assert np.all(np.isfinite(np.asarray(tiled.dist[-1])[16:, 16:]))
+  assert np.all(np.asarray(tiled.sweeps)[:4] < np.asarray(alone.sweeps)[:4])
+
+
+def test_tile_by_tile_bound_reports_non_convergence():
+  """Tile steps count against ``max_sweeps`` in whole-grid rounds: one round's worth of them is
+  not enough for a maze, and the result says so."""
+  costs, sources = _tile_worlds()
+  bounded = shortest_paths_batched(costs[:1], sources[:1], max_sweeps=2, tiles_after_rounds=1)
+  assert not bool(bounded.converged[0]) and int(bounded.sweeps[0]) == 2
+  with pytest.raises(ValueError, match="tiles_after_rounds"):
+    shortest_paths_batched(costs[:1], sources[:1], tiles_after_rounds=-1)

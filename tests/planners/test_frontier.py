@@ -107,3 +107,33 @@ def test_no_frontier_means_no_plan():
   robot = base.RobotView(pose=jnp.zeros(3), cell=jnp.asarray([5, 5], jnp.int32), cov=jnp.eye(3))
   result = get_planner("nearest_frontier").plan(config, view, robot, params, jax.random.PRNGKey(0))
   assert not bool(result.valid) and int(result.length) == 0
+
+
+def test_plans_finished_tile_by_tile_are_the_same_plans():
+  """``dijkstra_tiles_after_rounds`` reaches the planner's solver: down a serpentine corridor
+  whose end opens on unknown space, planning tile by tile after one round gives the plan of the
+  sweeps alone, bit for bit, at SciPy's cost."""
+  params = make_params(r_robot=0.0)
+  state = np.ones((40, 40), int)
+  for r in range(1, 38, 2):
+    state[r, 1:38] = 0
+    if r < 37:
+      state[r + 1, 37 if r % 4 == 1 else 1] = 0
+  state[37, 38] = 2  # the corridor's far end opens on unknown cells
+  start = (1, 1)
+  plans = []
+  for tiles_after_rounds in (0, 1):
+    config = base.PlannerContext(height=40, width=40, res=0.1, max_inflation_cells=0,
+                                 path_capacity=1024, dijkstra_tiles_after_rounds=tiles_after_rounds)
+    view = make_view(state, params, config)
+    robot = base.RobotView(pose=jnp.zeros(3), cell=jnp.asarray(start, jnp.int32), cov=jnp.eye(3))
+    plan = get_planner("nearest_frontier").plan
+    plan_fn = lambda v, r: plan(config, v, r, params, jax.random.PRNGKey(0))
+    plans.append(jax.jit(plan_fn)(view, robot))
+    # The tile steps pick their tiles with top_k; the sweeps alone never call it.
+    assert ("top_k" in str(jax.make_jaxpr(plan_fn)(view, robot))) == bool(tiles_after_rounds)
+  jax.tree.map(np.testing.assert_array_equal, plans[0], plans[1])
+  dist = dijkstra(grid_graph(np.asarray(view.traversable)), indices=start[0] * 40 + start[1])
+  goal = tuple(np.asarray(plans[1].goal))
+  assert bool(plans[1].valid) and np.asarray(view.frontier)[goal]
+  np.testing.assert_allclose(float(plans[1].cost), dist[goal[0] * 40 + goal[1]] * 0.1, rtol=1e-5)
