@@ -376,7 +376,9 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
       lowered = _lowered_by_one_relaxation(tile, tile_cost_t, tile_diagonal_t)
       return tile.transpose(1, 0, 2), jnp.any(lowered) & (rounds < size * size), rounds + 1
 
-    after, _, _ = lax.while_loop(lambda state: state[1], settle, (before, jnp.bool_(True), jnp.int32(0)))
+    # *_like keeps the carry's type equal to the body's output under shard_map (varying axes).
+    settling = jnp.ones_like(before[0, 0, 0], bool)
+    after, _, _ = lax.while_loop(lambda state: state[1], settle, (before, settling, jnp.int32(0)))
     old, new = before[1:-1, 1:-1], after[1:-1, 1:-1]
     new = jnp.where(pending, new, old)
     dist = lax.fori_loop(0, chosen.shape[0], lambda k, dist: lax.dynamic_update_slice(
@@ -390,7 +392,7 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
     _, key, steps, _ = carry
     return jnp.any(jnp.isfinite(key)) & (steps < max_steps)
 
-  init = (dist, key, jnp.int32(0), jnp.zeros((chunk,), jnp.int32))
+  init = (dist, key, jnp.int32(0), jnp.zeros_like(dist[0, 0], jnp.int32))
   dist, _, _, per_grid = lax.while_loop(not_done, step, init)
   return dist[: height + 2, : width + 2], per_grid
 

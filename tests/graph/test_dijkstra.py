@@ -556,3 +556,16 @@ def test_tile_by_tile_bound_reports_non_convergence():
   assert not bool(bounded.converged[0]) and int(bounded.sweeps[0]) == 2
   with pytest.raises(ValueError, match="tiles_after_rounds"):
     shortest_paths_batched(costs[:1], sources[:1], tiles_after_rounds=-1)
+
+
+def test_tile_by_tile_under_shard_map():
+  """The tiles' loops keep their carries' types under ``shard_map`` (the engine shards the batch
+  over host devices that way): the same distances as outside it."""
+  from jax.sharding import Mesh, PartitionSpec
+  costs, sources = _tile_worlds()
+  mesh = Mesh(np.array(jax.devices()[:1]), ("batch",))
+  spec = PartitionSpec("batch")
+  solve = jax.shard_map(lambda c, s: shortest_paths_batched(c, s, tiles_after_rounds=1), mesh=mesh,
+                        in_specs=(spec, spec), out_specs=spec)
+  sharded = jax.jit(solve)(costs, sources)
+  _same_but_rounds(sharded, shortest_paths_batched(costs, sources, tiles_after_rounds=0))
