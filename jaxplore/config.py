@@ -79,7 +79,7 @@ class SimConfig:
       yet settled is finished tile by tile; 0 (the default) = never. The built-in worlds' plans
       settle in at most ~18 rounds, where the tiles do not pay, and they add ~0.6 s of compile
       time per solver in the program; on 256 x 256 mazes of 3-cell corridors the solver
-      finishes ~2.7x sooner with 16 (``experiments/bench_dijkstra.py``).
+      finishes ~2.8x sooner with 16 (``experiments/bench_dijkstra.py``).
     plan_chunk: robots planned together with ``vmap`` (:func:`jaxplore.sim.plan_where_needed`).
     plan_window: side in cells of the square window around the robot that a ``windowed``
       planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
