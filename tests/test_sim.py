@@ -179,13 +179,12 @@ def test_changing_a_traced_parameter_does_not_retrace(rooms, planner):
   chex.clear_trace_counter()
   advance = jax.jit(chex.assert_max_traces(sim.advance_unjitted, n=1), static_argnames=("config", "n_epochs"))
   advance(config, world, params, state, n_epochs=2)
-  changes = [("v_max", 0.4), ("r_max", 2.0), ("alpha", 1.0), ("l_free", -0.5)]
-  for name, value in changes:
-    changed = params.replace(**{name: jnp.full((ROBOTS,), value, jnp.float32)})
-    out, _ = advance(config, world, changed, state, n_epochs=2)
-  for name in weights:
-    planner_weights = dict(params.planner, **{name: params.planner[name] * 0.5})
-    out, _ = advance(config, world, params.replace(planner=planner_weights), state, n_epochs=2)
+  # All at once: any one of them compiled in as a constant would make this call retrace.
+  changes = {"v_max": 0.4, "r_max": 2.0, "alpha": 1.0, "l_free": -0.5}
+  changed = params.replace(**{name: jnp.full((ROBOTS,), value, jnp.float32)
+                              for name, value in changes.items()},
+                           planner={name: value * 0.5 for name, value in params.planner.items()})
+  out, _ = advance(config, world, changed, state, n_epochs=2)
   jax.block_until_ready(out)
 
 
