@@ -348,7 +348,8 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
 
   def cut(framed, g, r, c):
     """Framed tiles [T + 2, T + 2, K] (tile k of grid g[k] at tile row r[k], column c[k])."""
-    one = lambda g, r, c: lax.dynamic_slice(framed, (r * size, c * size, g), (size + 2, size + 2, 1))
+    one = lambda g, r, c: lax.dynamic_slice(framed, (r * size, c * size, g),
+                                            (size + 2, size + 2, 1))
     return jax.vmap(one, out_axes=2)(g, r, c)[:, :, :, 0]
 
   # neighbour[t, k]: the tile beside tile t in direction _NEIGHBOURS[k]; C * tiles off the grid.
@@ -382,10 +383,12 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
     after, _, _ = lax.while_loop(lambda state: state[1], settle, (before, settling, jnp.int32(0)))
     old, new = before[1:-1, 1:-1], after[1:-1, 1:-1]
     new = jnp.where(pending, new, old)
-    dist = lax.fori_loop(0, chosen.shape[0], lambda k, dist: lax.dynamic_update_slice(
-        dist, lax.dynamic_slice_in_dim(new, k, 1, axis=2), (r[k] * size + 1, c[k] * size + 1, g[k])), dist)
+    write = lambda k, dist: lax.dynamic_update_slice(
+        dist, lax.dynamic_slice_in_dim(new, k, 1, axis=2), (r[k] * size + 1, c[k] * size + 1, g[k]))
+    dist = lax.fori_loop(0, chosen.shape[0], write, dist)
     lowered = jnp.where(new < old, new, inf)
-    wake = jnp.stack([jnp.min(lowered[edge(dr), edge(dc)], axis=(0, 1)) for dr, dc in _NEIGHBOURS], 1)
+    wake = jnp.stack([jnp.min(lowered[edge(dr), edge(dc)], axis=(0, 1))
+                      for dr, dc in _NEIGHBOURS], 1)
     key = key.at[chosen].set(inf).at[neighbour[chosen]].min(wake).at[-1].set(inf)
     return dist, key, steps + 1, per_grid + jnp.any(pending.reshape(chunk, per_step), axis=1)
 
@@ -400,7 +403,8 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
 
 @functools.partial(jax.jit, static_argnames=("max_sweeps", "method", "tiles_after_rounds"))
 def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int,
-                 method: str = "sweeps", tiles_after_rounds: int = TILES_AFTER_ROUNDS) -> ShortestPaths:
+                 method: str = "sweeps",
+                 tiles_after_rounds: int = TILES_AFTER_ROUNDS) -> ShortestPaths:
   """Shortest paths for C grids at once; fields of the result have a leading axis C.
 
   ``method`` "relaxation" runs passes of :func:`_relax_every_cell`, ``RELAXATION_PASSES_PER_CHECK``
