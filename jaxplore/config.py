@@ -78,8 +78,9 @@ class SimConfig:
       (:func:`jaxplore.graph.shortest_paths`): rounds of whole-grid sweeps after which a plan not
       yet settled is finished tile by tile; 0 (the default) = never. The built-in worlds' plans
       settle in at most ~18 rounds, where the tiles do not pay, and they add ~0.6 s of compile
-      time per solver in the program; on 256 x 256 mazes of 3-cell corridors the solver
-      finishes ~2.8x sooner with 16 (``experiments/bench_dijkstra.py``).
+      time per solver in the program. The solver alone finishes 256 x 256 mazes of 3-cell
+      corridors ~2.8x sooner with 16 (``experiments/bench_dijkstra.py``), but the engine, whose
+      plans are mostly windowed, ran a 0.6 m-corridor maze at the same rate with it.
     plan_chunk: robots planned together with ``vmap`` (:func:`jaxplore.sim.plan_where_needed`).
     plan_window: side in cells of the square window around the robot that a ``windowed``
       planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
