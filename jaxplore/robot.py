@@ -151,20 +151,22 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
     scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles, params.r_max / res,
                           n_cross, key=noise_key, noise_cells=params.range_noise / res, active=active,
                           dirs=dirs)
-    def seen_from(pose_est, est_dirs):
-      """The scan as integrated from ``pose_est``, where it is seen from, and its end cells."""
+    def seen_from(pose_est, est_dirs=None):
+      """The scan as integrated from ``pose_est``, where it is seen from, its end cells and beam
+      directions (``est_dirs``: those directions, when already computed)."""
       if config.pose_noise:
         # Integrated where the robot believes it is; beams keep their robot-frame angle.
         est_uv = to_cells(pose_est[:2], world.origin, res)[::-1]
         seen = scan._replace(angles=angles - pose[2] + pose_est[2])
         exact = jnp.bool_(False)
+        est_dirs = sensor.directions(seen.angles) if est_dirs is None else est_dirs
       else:
         seen, est_uv, exact = scan, true_uv, params.range_noise <= 0
       end_rows, end_cols = sensor.end_cells(seen, est_uv[0], est_uv[1], exact, est_dirs,
                                             true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
-      return seen, est_uv, end_rows, end_cols
+      return seen, est_uv, end_rows, end_cols, est_dirs
 
-    seen, est_uv, end_rows, end_cols = seen_from(pose_est, est_dirs)
+    seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
     # Relocalisation: enough beams end on occupied cells the belief already knows well.
     old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0)
     well_mapped = (old_end > mapping.logit(params.p_occ)) & (
@@ -182,8 +184,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       # corrected pose (integrated first, a heading error of a degree laid far walls' cells
       # across free space before the correction), and the free cells are carried from the
       # true beams (sensor.mark_observed).
-      est_dirs = sensor.directions(angles - pose[2] + pose_est[2])
-      seen, est_uv, end_rows, end_cols = seen_from(pose_est, est_dirs)
+      seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est)
       carried = dict(true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
     observed = sensor.mark_observed(sensor.empty_observation(shape), shape, seen, est_uv[0], est_uv[1],
                                     end_rows, end_cols, n_cross, active, est_dirs, **carried)

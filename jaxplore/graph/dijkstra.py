@@ -192,9 +192,9 @@ def _sweep_there_and_back(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.A
   return lax.fori_loop(0, 2 * num_lines, relax_line, dist)
 
 
-def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
-  """bool[C]: whether relaxing every cell of a framed ``[H + 2, W + 2, C]`` array once from its
-  8 neighbours lowers any distance of each grid.
+def _relaxed(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
+  """f32[H, W, C]: every cell of a framed ``[H + 2, W + 2, C]`` array relaxed once from its 8
+  neighbours (not yet min'ed with its own value).
 
   The sums are the sweeps' own additions (``neighbour + cost``, ``min(diagonals) +
   diagonal_cost``, with the same precomputed ``diagonal_cost``), so a fixed point of the sweeps
@@ -204,25 +204,34 @@ def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array, diagonal_cost: 
   """
   height, width = dist.shape[0] - 2, dist.shape[1] - 2
   at = lambda dr, dc: dist[1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
-  step_cost = cost[1:-1, 1:-1]
-  straight = jnp.minimum(jnp.minimum(at(-1, 0), at(1, 0)), jnp.minimum(at(0, -1), at(0, 1))) + step_cost
-  diagonal = (jnp.minimum(jnp.minimum(at(-1, -1), at(-1, 1)), jnp.minimum(at(1, -1), at(1, 1)))
-              + diagonal_cost[1:-1, 1:-1])
-  return jnp.any(jnp.minimum(straight, diagonal) < at(0, 0), axis=(0, 1))
-
-
-def _relax_every_cell(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
-  """One synchronous pass: every cell of a framed ``[H + 2, W + 2, C]`` array becomes the min of
-  itself and its relaxation from its 8 neighbours (the sweeps' own sums, as in
-  :func:`_lowered_by_one_relaxation`); the frame is kept."""
-  height, width = dist.shape[0] - 2, dist.shape[1] - 2
-  at = lambda dr, dc: dist[1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
   straight = (jnp.minimum(jnp.minimum(at(-1, 0), at(1, 0)), jnp.minimum(at(0, -1), at(0, 1)))
               + cost[1:-1, 1:-1])
   diagonal = (jnp.minimum(jnp.minimum(at(-1, -1), at(-1, 1)), jnp.minimum(at(1, -1), at(1, 1)))
               + diagonal_cost[1:-1, 1:-1])
-  new = jnp.minimum(at(0, 0), jnp.minimum(straight, diagonal))
+  return jnp.minimum(straight, diagonal)
+
+
+def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
+  """bool[C]: whether relaxing every cell of a framed ``[H + 2, W + 2, C]`` array once from its
+  8 neighbours (:func:`_relaxed`) lowers any distance of each grid."""
+  return jnp.any(_relaxed(dist, cost, diagonal_cost) < dist[1:-1, 1:-1], axis=(0, 1))
+
+
+def _relax_every_cell(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
+  """One synchronous pass: every cell of a framed ``[H + 2, W + 2, C]`` array becomes the min of
+  itself and its relaxation from its 8 neighbours (:func:`_relaxed`); the frame is kept."""
+  new = jnp.minimum(dist[1:-1, 1:-1], _relaxed(dist, cost, diagonal_cost))
   return jnp.pad(new, ((1, 1), (1, 1), (0, 0)), constant_values=jnp.inf)
+
+
+def _round_of_sweeps(dist, cost, diagonal_cost, cost_t, diagonal_cost_t):
+  """The 4 sweeps over a framed ``[N + 2, M + 2, C]`` array (a whole grid, or tiles framed by
+  their neighbours' edge cells), and bool[C]: whether one more relaxation would still lower a
+  cell (checked on the column-major array the last sweeps leave, with the transposed costs
+  ``cost_t``, ``diagonal_cost_t``: the 8-neighbourhood is symmetric under transposition)."""
+  dist = _sweep_there_and_back(dist, cost, diagonal_cost)
+  dist = _sweep_there_and_back(dist.transpose(1, 0, 2), cost_t, diagonal_cost_t)
+  return dist.transpose(1, 0, 2), _lowered_by_one_relaxation(dist, cost_t, diagonal_cost_t)
 
 
 def _tight_predecessors(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
@@ -333,8 +342,8 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
   inf = jnp.float32(jnp.inf)
 
   # Pending tiles at the start: where one relaxation would lower a cell.
-  relaxed = _relax_every_cell(dist, cost, diagonal_cost)
-  lowered = jnp.where(relaxed < dist, relaxed, inf)[1:-1, 1:-1]
+  relaxed = _relaxed(dist, cost, diagonal_cost)
+  lowered = jnp.where(relaxed < dist[1:-1, 1:-1], relaxed, inf)
   # Blocked cells past the frame make the grid whole tiles.
   extra = ((0, tile_rows * size - height), (0, tile_cols * size - width), (0, 0))
   lowered, dist, cost, diagonal_cost = (jnp.pad(a, extra, constant_values=inf)
@@ -373,10 +382,8 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
 
     def settle(state):
       tile, _, rounds = state
-      tile = _sweep_there_and_back(tile, tile_cost, tile_diagonal)
-      tile = _sweep_there_and_back(tile.transpose(1, 0, 2), tile_cost_t, tile_diagonal_t)
-      lowered = _lowered_by_one_relaxation(tile, tile_cost_t, tile_diagonal_t)
-      return tile.transpose(1, 0, 2), jnp.any(lowered) & (rounds < size * size), rounds + 1
+      tile, lowered = _round_of_sweeps(tile, tile_cost, tile_diagonal, tile_cost_t, tile_diagonal_t)
+      return tile, jnp.any(lowered) & (rounds < size * size), rounds + 1
 
     # *_like keeps the carry's type equal to the body's output under shard_map (varying axes).
     settling = jnp.ones_like(before[0, 0, 0], bool)
@@ -428,14 +435,6 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int,
     return _relax_to_fixed_point(dist, cost_rows, diagonal_rows, source,
                                  max_sweeps * (node_cost.shape[1] + node_cost.shape[2]))
 
-  def one_round(dist):
-    """The 4 sweeps, and whether one more relaxation would still lower a cell (checked on the
-    column-major array the last sweeps leave, with the transposed costs: the 8-neighbourhood
-    is symmetric under transposition)."""
-    dist = _sweep_there_and_back(dist, cost_rows, diagonal_rows)
-    dist = _sweep_there_and_back(dist.transpose(1, 0, 2), cost_cols, diagonal_cols)
-    return dist.transpose(1, 0, 2), _lowered_by_one_relaxation(dist, cost_cols, diagonal_cols)
-
   whole_grid_rounds = tiles_after_rounds if 0 < tiles_after_rounds < max_sweeps else max_sweeps
 
   def not_done(carry):
@@ -446,7 +445,7 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int,
     dist, rounds, active, sweeps = carry
     # A grid that has converged stays put while the others in its chunk finish; a grid the
     # check can still lower gets another round, which relaxes every edge the check did.
-    dist, changed = one_round(dist)
+    dist, changed = _round_of_sweeps(dist, cost_rows, diagonal_rows, cost_cols, diagonal_cols)
     return dist, rounds + 1, active & changed, sweeps + active.astype(jnp.int32)
 
   # *_like keeps the carry's type equal to the body's output under shard_map (varying axes).
@@ -494,6 +493,11 @@ def _relax_to_fixed_point(dist, cost, diagonal_cost, source, max_passes: int) ->
                        converged=~active)
 
 
+def _check_tiles_after_rounds(tiles_after_rounds: int) -> None:
+  if tiles_after_rounds < 0:
+    raise ValueError(f"tiles_after_rounds must be >= 0 (0 = never), got {tiles_after_rounds}")
+
+
 def shortest_paths_batched(
     node_cost: jax.Array,
     source: jax.Array,
@@ -532,8 +536,7 @@ def shortest_paths_batched(
     max_sweeps = default_max_sweeps(height, width)
   if method not in METHODS:
     raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-  if tiles_after_rounds < 0:
-    raise ValueError(f"tiles_after_rounds must be >= 0 (0 = never), got {tiles_after_rounds}")
+  _check_tiles_after_rounds(tiles_after_rounds)
   return _solve_in_chunks(node_cost, source, max(1, min(chunk, batch)), int(max_sweeps), method,
                           int(tiles_after_rounds))
 
@@ -611,8 +614,7 @@ def shortest_paths(
   source = jnp.asarray(source, jnp.int32)
   if max_sweeps is None:
     max_sweeps = default_max_sweeps(*node_cost.shape)
-  if tiles_after_rounds < 0:
-    raise ValueError(f"tiles_after_rounds must be >= 0 (0 = never), got {tiles_after_rounds}")
+  _check_tiles_after_rounds(tiles_after_rounds)
   return _single_grid_solver(int(max_sweeps), int(tiles_after_rounds))(node_cost, source)
 
 
