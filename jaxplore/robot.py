@@ -121,7 +121,7 @@ def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
       dijkstra_tiles_after_rounds=config.dijkstra_tiles_after_rounds,
       max_inflation_cells=config.max_inflation_cells, max_steps=config.max_steps,
       r_e_cells=config.r_e / config.res if keeps_entropy_map(config) else 0.0,
-      settings=config.planner_settings)
+      settings=config.planner_settings, strategy=config.strategy)
 
 
 def robot_view(config: SimConfig, world: World, state: State) -> planners_base.RobotView:

@@ -45,6 +45,8 @@ class PlannerContext:
     r_e_cells: Li et al.'s effective radius R_e (Eq 5-6) in cells, the radius of the entropy
       map's update region; 0 when the engine keeps no entropy map.
     settings: the planner's static settings (its registered frozen dataclass, resolved), or None.
+    strategy: the engine's execution strategy (``SimConfig.strategy``, ``"per_robot"`` or
+      ``"lockstep"``): a planner may shape its kernels by it, never its results.
   """
 
   height: int
@@ -57,6 +59,7 @@ class PlannerContext:
   max_steps: int = 2000
   r_e_cells: float = 0.0
   settings: Any = None
+  strategy: str = "per_robot"
 
 
 @chex.dataclass(frozen=True)

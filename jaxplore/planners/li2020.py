@@ -79,6 +79,14 @@ DEFAULTS = {
     "progress_m": 20.0,
 }
 
+# Disc offsets per loop step of visible_gains, by execution strategy
+# (experiments/bench_visible_blocks.py: lab-sized 130 x 170 grid, R_e 57 cells, robots vmapped).
+# One H200: 28 / 4.0 / 2.6 ms per robot at 4 / 64 / 256 robots in blocks of 8, 68 / 6.3 / 3.8
+# one offset at a time. One core of the 2-core CPU, 4 robots: 87-93 ms per robot in blocks of
+# 2, 87-97 of 4, 118 of 8, 105-108 one at a time; lab, li2020, 64 robots on both cores:
+# 486-492 robot-steps/s in blocks of 2, 459-466 of 4, 432-441 one at a time.
+VISIBLE_BLOCK = {"per_robot": 2, "lockstep": 8}
+
 # det Σ_max = 1e2 (m²·m²·rad²) is this project's choice, not Li's (the paper gives no value).
 # What it means with Eq 16 at σ_d = σ_φ = 1, Σ_0 = 1e-4·I and 0.1 m cells (a NumPy loop of
 # Eq 17, road-mark points every 0.5 m / every cell): a straight path never reaches it (det Σ is
@@ -342,7 +350,7 @@ def sight_levels(radius: float):
   return steps, counts, rim, rim_counts
 
 
-def visible_gains(gains, occupied, radius: float):
+def visible_gains(gains, occupied, radius: float, block: int = 1):
   """Per-cell sums of ``gains`` over what a sensor at each cell sees within ``radius``.
 
   A cell ``c`` within ``radius`` of ``v`` is seen from ``v`` when no cell the belief holds
@@ -361,17 +369,33 @@ def visible_gains(gains, occupied, radius: float):
   radius), not in a stack over depths: XLA:CPU copied that stack twice per offset (~85 % of
   the time of the one-loop version this replaces).
 
+  The offsets of a depth, and its crescent memberships, are taken ``block`` at a time, one
+  loop step each block (the last block's extra rows add nothing): on a GPU a block is one fused
+  kernel instead of ``block`` chains of small ones, and the loop steps (each a round trip to
+  the host there) are ``block`` times fewer. The sums are added in the same order, so the
+  result does not depend on ``block``.
+
   Args:
     gains: f32[C, H, W] per-cell values.
     occupied: bool[H, W] cells that block the view.
     radius: R_e in cells (static).
+    block: offsets per loop step (static, >= 1; :data:`VISIBLE_BLOCK` by strategy).
   Returns:
     (full f32[C, H, W]: the sum over the whole visible disc of every cell; crescent
     f32[8, C, H, W]: the sum over the visible part of the crescent of ``crescents(radius)[d]``
     for the d-th of ``mapping.NEIGHBOURS_8``).
   """
-  steps, counts, rim, rim_counts = (jnp.asarray(a) for a in sight_levels(radius))
+  if block < 1:
+    raise ValueError(f"block must be >= 1, got {block}")
+  steps, counts, rim, rim_counts = sight_levels(radius)
   n_groups, n_depth, width = steps.shape[:3]
+  slots = -(-width // block) * block
+  if slots > width:  # room for whole blocks: a last block's extra rows write unused slots
+    steps = np.pad(steps, [(0, 0), (0, 0), (0, slots - width), (0, 0)])
+    steps[..., 4] = np.where(steps[..., 4] == width, slots, steps[..., 4])
+  if rim.shape[2] % block:
+    rim = np.pad(rim, [(0, 0), (0, 0), (0, -rim.shape[2] % block), (0, 0)])
+  steps, counts, rim, rim_counts = (jnp.asarray(a) for a in (steps, counts, rim, rim_counts))
   c, h, w = gains.shape
   pad = int(math.floor(radius)) + 1
   framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
@@ -393,6 +417,18 @@ def visible_gains(gains, occupied, radius: float):
   def window(field, at):
     return jax.lax.dynamic_slice(field, (0, at[0] + pad, at[1] + pad), field.shape[:1] + (h, w))
 
+  def in_blocks(count, body, carry):
+    """``fori_loop(0, count, body, carry)``, ``block`` indices per loop step."""
+    if block == 1:
+      return jax.lax.fori_loop(0, count, body, carry)
+
+    def step(b, carry):
+      for u in range(block):
+        carry = body(b * block + u, carry)
+      return carry
+
+    return jax.lax.fori_loop(0, (count + block - 1) // block, step, carry)
+
   def level(k, parent_masks, masks, full, crescent):
     group, d = k // n_depth, k % n_depth  # depth d + 1 of the group
     table = steps[group, d]
@@ -403,16 +439,18 @@ def visible_gains(gains, occupied, radius: float):
       at = table[m, :2]
       sight = seen & jax.lax.dynamic_slice(clear, (at[0] + pad, at[1] + pad), (h, w))
       masks = jax.lax.dynamic_update_index_in_dim(masks, sight, m, 0)
-      counted = seen & (table[m, 6] > 0)
+      counted = seen & (table[m, 6] > 0)  # 0 in the rows past the count
       return masks, full + jnp.where(counted, window(framed_gain, at), 0.0)
 
     def add(j, crescent):
       n, m = rim[group, d, j]
       seen = seen_at(parent_masks, table[m])
+      if block > 1:  # a last block's rows past the count point at offset 0
+        seen = seen & (j < rim_counts[group, d])
       return crescent.at[n].add(jnp.where(seen, window(framed_gain, table[m, :2]), 0.0))
 
-    masks, full = jax.lax.fori_loop(0, counts[group, d], visit, (masks, full))
-    return masks, full, jax.lax.fori_loop(0, rim_counts[group, d], add, crescent)
+    masks, full = in_blocks(counts[group, d], visit, (masks, full))
+    return masks, full, in_blocks(rim_counts[group, d], add, crescent)
 
   def two_levels(k, carry):
     # Two depths per iteration, each buffer in its place: swapping them in the carry of a
@@ -422,8 +460,9 @@ def visible_gains(gains, occupied, radius: float):
     even, full, crescent = level(2 * k + 1, odd, even, full, crescent)
     return even, odd, full, crescent
 
-  # Slot M of both buffers is the centre's mask (every cell sees itself), never overwritten.
-  masks = jnp.zeros((width + 1, h, w), bool).at[width].set(True)
+  # The last slot of both buffers is the centre's mask (every cell sees itself), never
+  # overwritten.
+  masks = jnp.zeros((slots + 1, h, w), bool).at[slots].set(True)
   crescent = jnp.zeros((8,) + gains.shape, gains.dtype)
   _, _, full, crescent = jax.lax.fori_loop(0, n_groups * n_depth // 2, two_levels,
                                            (masks, masks, gains, crescent))
@@ -557,7 +596,7 @@ def tree_quantities(config, view, robot, params, pred, gains):
     # Each cell once per path, counted where it enters the region of a waypoint (seen from that
     # waypoint), or where it leaves it (seen from the waypoint it leaves), whichever sum is
     # larger; see visible_gains and Settings.region.
-    full, crescent = visible_gains(gains, view.occupied, radius)
+    full, crescent = visible_gains(gains, view.occupied, radius, VISIBLE_BLOCK[config.strategy])
     full, crescent = full.reshape(2, -1), crescent.reshape(8, 2, -1)
     code = (d_row + 1) * 3 + (d_col + 1)  # index into NEIGHBOURS_8 after removing (0, 0)
     toward, away = jnp.where(code > 4, code - 1, code), jnp.where(code < 4, 7 - code, 8 - code)

@@ -493,6 +493,20 @@ def test_visible_gains_match_a_chain_walk_and_the_one_loop_version(transform):
       np.testing.assert_allclose(got_sum, old_sum, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.parametrize("block", [3, 8])
+def test_visible_gains_in_blocks_are_the_sums_one_offset_at_a_time_bit_for_bit(block):
+  """The lockstep strategy's blocks of offsets (a last block part empty, or wider than a depth)
+  add the same numbers in the same order."""
+  blocked = jax.jit(li2020.visible_gains, static_argnums=(2, 3))
+  for radius, shape in SIGHT_CASES:
+    occupied, gains = sight_case(radius, shape)[:2]
+    args = jnp.asarray(gains), jnp.asarray(occupied), radius
+    for got, want in zip(blocked(*args, block), VISIBLE(*args)):
+      np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+  with pytest.raises(ValueError, match="block"):
+    li2020.visible_gains(*args, 0)
+
+
 def test_entropy_behind_a_known_wall_makes_the_disc_region_cycle_and_not_the_visible_one():
   """The livelock: a mapped corridor under a known wall, behind it unknown space made observable
   by two cells seen long ago. The whole-disc region counts the unknown cells near them from the
