@@ -371,9 +371,8 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
 
   The offsets of a depth, and its crescent memberships, are taken ``block`` at a time, one
   loop step each block (the last block's extra rows add nothing): on a GPU a block is one fused
-  kernel instead of ``block`` chains of small ones, and the loop steps (each a round trip to
-  the host there) are ``block`` times fewer. The sums are added in the same order, so the
-  result does not depend on ``block``.
+  kernel instead of ``block`` chains of small ones, and there are ``block`` times fewer loop
+  steps. The sums are added in the same order, so the result does not depend on ``block``.
 
   Args:
     gains: f32[C, H, W] per-cell values.
@@ -390,7 +389,7 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
   steps, counts, rim, rim_counts = sight_levels(radius)
   n_groups, n_depth, width = steps.shape[:3]
   slots = -(-width // block) * block
-  if slots > width:  # room for whole blocks: a last block's extra rows write unused slots
+  if slots > width:  # room for whole blocks: a last block's extra rows write spare slots
     steps = np.pad(steps, [(0, 0), (0, 0), (0, slots - width), (0, 0)])
     steps[..., 4] = np.where(steps[..., 4] == width, slots, steps[..., 4])
   if rim.shape[2] % block:
@@ -419,8 +418,6 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
 
   def in_blocks(count, body, carry):
     """``fori_loop(0, count, body, carry)``, ``block`` indices per loop step."""
-    if block == 1:
-      return jax.lax.fori_loop(0, count, body, carry)
 
     def step(b, carry):
       for u in range(block):
@@ -444,9 +441,8 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
 
     def add(j, crescent):
       n, m = rim[group, d, j]
-      seen = seen_at(parent_masks, table[m])
-      if block > 1:  # a last block's rows past the count point at offset 0
-        seen = seen & (j < rim_counts[group, d])
+      # A last block's rows past the count point at offset 0.
+      seen = seen_at(parent_masks, table[m]) & (j < rim_counts[group, d])
       return crescent.at[n].add(jnp.where(seen, window(framed_gain, table[m, :2]), 0.0))
 
     masks, full = in_blocks(counts[group, d], visit, (masks, full))
