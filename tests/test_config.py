@@ -1,5 +1,5 @@
 """Li's effective radius R_e from the lidar (Eq 5-6), and where config_for uses it; the
-execution strategy and its automatic default."""
+execution strategy, its automatic default and the planner being told it."""
 
 import dataclasses
 import math
@@ -97,3 +97,13 @@ def test_length_limit_is_the_maps_diagonal_or_100_m():
   assert big.max_range_cells == 1000
   with pytest.raises(ConfigError, match="at most the map's diagonal or 100 m"):
     config_for((3, 3), 0.1, make_params("li2020", res=0.1, r_max=100.5))
+
+
+def test_the_planner_is_told_the_strategy_the_engine_runs():
+  """A planner may shape its kernels by the strategy (li2020's visible-gain blocks): the
+  context the engine builds carries it, for the whole grid and for a window."""
+  from jaxplore.robot import planner_context
+  for strategy in ("per_robot", "lockstep"):
+    config = SimConfig(height=40, width=50, res=0.1, strategy=strategy)
+    assert planner_context(config).strategy == strategy
+    assert planner_context(config, (16, 16)).strategy == strategy
