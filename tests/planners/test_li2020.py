@@ -507,6 +507,23 @@ def test_visible_gains_in_blocks_are_the_sums_one_offset_at_a_time_bit_for_bit(b
     li2020.visible_gains(*args, 0)
 
 
+def test_the_planner_takes_the_visible_gain_blocks_of_the_engines_strategy(monkeypatch):
+  """Traced only: li2020 asks visible_gains for VISIBLE_BLOCK[strategy]."""
+  blocks = []
+  visible = li2020.visible_gains
+  monkeypatch.setattr(li2020, "visible_gains",
+                      lambda *args: blocks.append(args[3]) or visible(*args))
+  params = params_for()
+  state, l, entropy = belief(5)
+  view = make_view(l, entropy, params)
+  for strategy in ("per_robot", "lockstep"):
+    ctx = dataclasses.replace(CONFIG, strategy=strategy)
+    jax.eval_shape(lambda: li2020.plan_li2020(ctx, view, robot_at((5, 15)), params,
+                                              jax.random.PRNGKey(0), li2020.init_memory(ctx, params)))
+  assert blocks == [li2020.VISIBLE_BLOCK["per_robot"], li2020.VISIBLE_BLOCK["lockstep"]]
+  assert blocks[0] != blocks[1]
+
+
 def test_entropy_behind_a_known_wall_makes_the_disc_region_cycle_and_not_the_visible_one():
   """The livelock: a mapped corridor under a known wall, behind it unknown space made observable
   by two cells seen long ago. The whole-disc region counts the unknown cells near them from the
