@@ -114,8 +114,10 @@ def peak_device_bytes() -> int | None:
   return stats.get("peak_bytes_in_use")
 
 
-def time_setting(grid, label: str, strategy: str, robots: int, args) -> dict:
-  """Resolve, reset, compile and time one (setting, strategy, batch); one result row."""
+def time_setting(grid, label: str, strategy: str, robots: int, args, keep: dict | None = None
+                 ) -> dict:
+  """Resolve, reset, compile and time one (setting, strategy, batch); one result row (and the
+  final state in ``keep["state"]``, when ``keep`` is given)."""
   _, planner, preset = SETTINGS[label]
   steps = args.steps
   spec = RunSpec(world=grid, planner=planner, robots=robots, seed=args.seed, preset=preset,
@@ -152,6 +154,8 @@ def time_setting(grid, label: str, strategy: str, robots: int, args) -> dict:
     done_steps += chunk_epochs * config.replan_every
     chunk_rates.append((int(np.asarray(state.steps).sum()) - before) / dt)
   robot_steps = int(np.asarray(state.steps).sum()) - steps_before
+  if keep is not None:
+    keep["state"] = state
   return dict(row, reset_s=reset_s, compile_s=compile_s, run_s=t_all, steps=done_steps,
               robot_steps=robot_steps, rate=robot_steps / t_all,
               chunk_rates=chunk_rates, done=int(np.asarray(state.done).sum()),
