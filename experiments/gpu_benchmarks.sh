@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# The open GPU measurements, in the order they matter, each writing its results file as its rows
+# finish (a run cut short keeps what it measured). On one H100/H200 through the device tool:
+#
+#   bash experiments/gpu_benchmarks.sh variants OUT   # ~5 min: office 1,024 / 4,096 robots, the
+#                                                     # lockstep candidates against head
+#   bash experiments/gpu_benchmarks.sh lab OUT        # ~4 min: lab li2020 64 / 256, CUDA graphs
+#   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
+#   bash experiments/gpu_benchmarks.sh table OUT EB   # ~7 min: the README table (EB: a folder
+#                                                     # holding room.yaml and room.pgm)
+#
+# OUT defaults to experiments/results. Each part is one command line below; run them by hand
+# with other batch sizes as the budget allows.
+set -euo pipefail
+part=${1:?"which part: variants, lab, stages or table"}
+out=${2:-experiments/results}
+mkdir -p "$out"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
+case "$part" in
+  variants)
+    python experiments/bench_lockstep_variants.py --setting office --robots 1024,4096 \
+      --out "$out/bench_lockstep_variants_gpu.md" ;;
+  lab)
+    python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
+      --chunk-steps 16 --variants graphs --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
+  stages)
+    python experiments/stage_times.py --settings office,lab --strategies lockstep \
+      --robots 4,64,1024 --out "$out/stage_times_gpu.md" ;;
+  table)
+    eb=${3:?"a folder holding the Explore-Bench room.yaml and room.pgm"}
+    python experiments/bench_accelerator.py --settings office --strategies lockstep \
+      --robots 64,1024,4096,16384 --steps 96 --budget-s 30 --out "$out/bench_office_gpu.md"
+    python experiments/bench_accelerator.py --settings eb:room --strategies lockstep \
+      --robots 64,1024,4096 --steps 96 --budget-s 25 --explore-bench "$eb" \
+      --out "$out/bench_room_gpu.md"
+    python experiments/bench_accelerator.py --settings lab --strategies lockstep \
+      --robots 64,256,1024 --steps 32 --chunk-steps 16 --budget-s 40 --out "$out/bench_lab_gpu.md" ;;
+  *)
+    echo "unknown part $part: variants, lab, stages or table" >&2; exit 2 ;;
+esac
