@@ -24,6 +24,9 @@ on a GPU:
   at a typical step on ``lab``) and pays for the whole chunk of 64 (copies of that robot);
   a smaller chunk costs less per call but needs more calls when many robots plan. Bit for bit
   (a chunk's size never changes a plan).
+- ``by_need``: each planning round picks its chunk by how many robots need a plan: one chunk
+  of 4 or 16 when that holds them all, else the engine's chunks (``lax.switch``; the planner is
+  compiled once per size). Never more calls than the engine's, each no larger.
 
 Every (batch, variant) runs in its own process, alternated as head, the variants, head again,
 so a drift of the machine shows; each times ``bench_accelerator.time_setting`` (the same steps
@@ -56,6 +59,7 @@ VARIANTS = {  # name: (engine functions replaced, XLA flags added)
     "graphs": ((), "--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"),
     "chunk16": (("chunk16",), ""),
     "chunk4": (("chunk4",), ""),
+    "by_need": (("by_need",), ""),
 }
 # Leaves that may differ by float summation order, with the relative tolerance they are held to.
 TOLERANT = {".entropy": 1e-5}
@@ -114,6 +118,27 @@ def _patch(variant: str) -> None:
   for chunk in (16, 4):
     if f"chunk{chunk}" in patches:
       planning.LOCKSTEP_PLAN_CHUNK = chunk
+  if "by_need" in patches:
+    planning._plan_robots = _plan_robots_by_need(planning._plan_robots)
+
+
+def _plan_robots_by_need(plan_robots, smaller=(4, 16)):
+  """``planning._plan_robots`` planning in the smallest of ``smaller`` + (chunk,) chunks that
+  holds every robot that needs a plan in one, else in ``chunk``-sized chunks as before."""
+  import jax
+  import jax.numpy as jnp
+
+  def by_need(config, world, params, state, need, window, chunk):
+    sizes = sorted({size for size in smaller if size < min(chunk, need.shape[0])} | {chunk})
+    if len(sizes) == 1:
+      return plan_robots(config, world, params, state, need, window, chunk)
+    n_need = jnp.sum(need.astype(jnp.int32))
+    branch = sum((n_need > size).astype(jnp.int32) for size in sizes[:-1])
+    rounds = [lambda s, size=size: plan_robots(config, world, params, s, need, window, size)
+              for size in sizes]
+    return jax.lax.switch(branch, rounds, state)
+
+  return by_need
 
 
 def child(args) -> None:

@@ -4,7 +4,8 @@
 #
 #   bash experiments/gpu_benchmarks.sh variants OUT   # ~5 min: office 1,024 / 4,096 robots, the
 #                                                     # lockstep candidates against head
-#   bash experiments/gpu_benchmarks.sh lab OUT        # ~4 min: lab li2020 64 / 256, CUDA graphs
+#   bash experiments/gpu_benchmarks.sh lab OUT        # ~6 min: lab li2020 64 / 256, CUDA graphs
+#                                                     # and smaller planning chunks
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
 #   bash experiments/gpu_benchmarks.sh table OUT EB   # ~7 min: the README table (EB: a folder
 #                                                     # holding room.yaml and room.pgm)
@@ -22,7 +23,7 @@ case "$part" in
       --out "$out/bench_lockstep_variants_gpu.md" ;;
   lab)
     python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
-      --chunk-steps 16 --variants graphs --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
+      --chunk-steps 16 --variants graphs,chunk4,by_need --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
   stages)
     python experiments/stage_times.py --settings office,lab --strategies lockstep \
       --robots 4,64,1024 --out "$out/stage_times_gpu.md" ;;
