@@ -4,6 +4,7 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from scipy import ndimage
 
 from conftest import EAGER_AND_JIT
@@ -98,3 +99,58 @@ def test_entropy_map_update_is_eq3_inside_radius_only(transform):
       if (i + 0.5 - robot[0]) ** 2 + (j + 0.5 - robot[1]) ** 2 <= radius**2:
         ref[i, j] = k * e[i, j] + (1 - k) * h_hat[i, j]
   np.testing.assert_allclose(ours, ref, atol=1e-5)
+
+
+def _observation_case(shape, seed):
+  """Random beliefs of 3 robots, one scan's observation as tiles (tiles not seen, seen free
+  only, or mixed; cells at the clamp), and the reachable cells."""
+  from jaxplore import sensor
+
+  params = make_params("li2020")
+  rng = np.random.default_rng(seed)
+  h, w, t = shape[0], shape[1], sensor.OBS_TILE
+  logodds = rng.uniform(float(params.l_min), float(params.l_max), (3, h, w)).astype(np.float32)
+  logodds[:, rng.random((h, w)) < 0.3] = 0.0
+  logodds[:, rng.random((h, w)) < 0.05] = np.float32(params.l_max)
+  grid = rng.integers(0, 3, (h, w)).astype(np.int8)
+  n_rows, n_cols = -(-h // t), -(-w // t)
+  by_tile = lambda mask: np.kron(mask, np.ones((t, t), bool))[:h, :w]
+  grid[by_tile(rng.random((n_rows, n_cols)) < 0.5) & (grid == 2)] = 1  # tiles seen free only
+  hidden = rng.random((n_rows, n_cols)) < 0.4  # tiles not seen (the first one is)
+  hidden.flat[0] = False
+  grid[by_tile(hidden)] = 0
+  padded = np.zeros((n_rows * t, n_cols * t), np.int8)
+  padded[:h, :w] = grid
+  tiles = padded.reshape(n_rows, t, n_cols, t).transpose(0, 2, 1, 3)
+  reachable = rng.random((h, w)) < 0.7
+  return params, logodds, grid, tiles, reachable
+
+
+def _entropy64(logodds):
+  p = 1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))
+  with np.errstate(divide="ignore", invalid="ignore"):
+    return np.nan_to_num(-p * np.log(p)) + np.nan_to_num(-(1 - p) * np.log(1 - p))
+
+
+@EAGER_AND_JIT
+@pytest.mark.parametrize("shape", [(37, 50), (32, 16), (5, 7)], ids=str)
+def test_integrate_observation_is_the_inverse_sensor_model_on_one_robot(transform, shape):
+  """The tile loop against the model written over the whole grid in NumPy: the other robots'
+  grids untouched, each seen cell + l_free / l_occ once, clamped; the entropy and coverage
+  changes of that robot's map."""
+  params, logodds, grid, tiles, reachable = _observation_case(shape, seed=sum(shape))
+  robot = 1
+  new, d_entropy, d_covered = transform(mapping.integrate_observation)(
+      jnp.asarray(logodds), robot, jnp.asarray(tiles), jnp.asarray(reachable), params)
+  new = np.asarray(new)
+  old = logodds[robot]
+  delta = np.where(grid == 2, np.float32(params.l_occ), np.where(grid == 1, np.float32(params.l_free),
+                                                                 np.float32(0.0)))
+  expected = np.clip(old + delta, np.float32(params.l_min), np.float32(params.l_max))
+  np.testing.assert_array_equal(new[robot], expected)
+  np.testing.assert_array_equal(np.delete(new, robot, 0), np.delete(logodds, robot, 0))
+  threshold = np.float32(mapping.logit(params.p_free))
+  assert int(d_covered) == (int(np.sum(reachable & (expected < threshold)))
+                            - int(np.sum(reachable & (old < threshold))))
+  np.testing.assert_allclose(float(d_entropy), np.sum(_entropy64(expected) - _entropy64(old)),
+                             rtol=1e-4, atol=1e-3)
