@@ -13,14 +13,25 @@ import os
 import sys
 
 
-def _key_values(items, what):
+def _number_or_text(value: str, text_allowed: bool):
+  """A flag's value: a number, or (``text_allowed``: a planner's static setting such as
+  li2020's ``region``) the text itself, which the planner's settings then check."""
+  try:
+    return float(value)
+  except ValueError:
+    if text_allowed:
+      return value.strip()
+    raise
+
+
+def _key_values(items, what, text_allowed=False):
   out = {}
   for item in items or []:
     if "=" not in item:
       raise SystemExit(f"jaxplore: error: {what} takes NAME=VALUE, got {item!r}")
     name, value = item.split("=", 1)
     try:
-      out[name.strip()] = float(value)
+      out[name.strip()] = _number_or_text(value, text_allowed)
     except ValueError:
       raise SystemExit(f"jaxplore: error: {what} {name}: {value!r} is not a number") from None
   return out
@@ -59,7 +70,7 @@ def _parameter_flags(extra, planners):
                         f"{' or '.join(repr(p) for p in planners)} "
                         f"({', '.join(weights) or 'none'})")
     try:
-      target[name] = float(value)
+      target[name] = _number_or_text(value, kinds == {"setting"})
     except ValueError:
       raise ConfigError(f"--{name}: {value!r} is not a number") from None
   return params, planner_params
@@ -91,7 +102,7 @@ def _spec_flags(args, extra, planners) -> dict:
   """The run settings given as flags (None where not given), parameter tables included."""
   params, planner_params = _parameter_flags(extra, planners)
   params.update(_key_values(args.set, "--set"))
-  planner_params.update(_key_values(args.planner_set, "--planner-set"))
+  planner_params.update(_key_values(args.planner_set, "--planner-set", text_allowed=True))
   return dict(preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
               replan_every=args.replan_every, path_capacity=args.path_capacity,
               plan_window=args.plan_window, pose_noise=args.pose_noise,

@@ -160,6 +160,9 @@ def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
   one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
   spec = get_planner(planner)
   weights, settings = spec.split_overrides(planner_params)
+  for name, value in weights.items():
+    if any(isinstance(v, (str, bytes)) for v in (value if isinstance(value, tuple) else (value,))):
+      raise ConfigError(f"planner {planner!r}: weight {name} must be a number, got {value!r}")
   weights = {k: np.asarray(v, np.float32) if isinstance(v, tuple) else v
              for k, v in weights.items()}
   settings = {k: _one_value(k, v) for k, v in settings.items()}

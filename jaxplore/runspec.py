@@ -89,11 +89,14 @@ def parse_start(start) -> tuple[float, float, float] | None:
   return (values[0], values[1], values[2] if len(values) == 3 else 0.0)
 
 
-def _value(value, what: str):
-  """A setting's value: a finite number, a bool (a planner's static switch), or one number per
-  robot (a tuple)."""
+def _value(value, what: str, text_allowed: bool = False):
+  """A setting's value: a finite number, a bool (a planner's static switch), one number per
+  robot (a tuple), or (``text_allowed``: a planner's static setting, such as li2020's
+  ``region``, which the planner's settings check) a string."""
   if isinstance(value, (bool, np.bool_)):
     return bool(value)
+  if isinstance(value, str) and text_allowed:
+    return value
   if isinstance(value, (str, bytes)):
     raise ConfigError(f"{what} must be a number, got {value!r}")
   if _is_number(value) or (isinstance(value, np.ndarray) and value.ndim == 0):
@@ -106,12 +109,13 @@ def _value(value, what: str):
   raise ConfigError(f"{what} must be a number, got {value!r}")
 
 
-def _mapping(values, what: str) -> Mapping:
+def _mapping(values, what: str, text_allowed: bool = False) -> Mapping:
   if values is None:
     return _EMPTY
   if not isinstance(values, Mapping):
     raise ConfigError(f"{what} must map names to numbers, got {values!r}")
-  return types.MappingProxyType({str(k): _value(v, f"{what}[{k!r}]") for k, v in values.items()})
+  return types.MappingProxyType({str(k): _value(v, f"{what}[{k!r}]", text_allowed)
+                                 for k, v in values.items()})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -219,7 +223,7 @@ class RunSpec:
     if unknown:
       raise ConfigError(f"unknown parameter(s) {unknown}; valid: {', '.join(SIM_PARAMS)}")
     put("params", params)
-    put("planner_params", _mapping(self.planner_params, "planner_params"))
+    put("planner_params", _mapping(self.planner_params, "planner_params", text_allowed=True))
     for what, values in (("parameter", params), ("planner parameter", self.planner_params)):
       for name, value in values.items():
         if isinstance(value, tuple) and len(value) != self.robots:
@@ -413,7 +417,7 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
     kwargs["out"] = typed("out", str, "a folder path")
   for key, target in (("set", "params"), ("planner_set", "planner_params")):
     if key in data:
-      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}")
+      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}", key == "planner_set")
                         for name, v in table(key).items()}
   return kwargs
 

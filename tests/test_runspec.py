@@ -152,3 +152,34 @@ def test_shape_settings_are_refused_naming_them_before_compute(capsys):
     assert cli.main(base + flags) == 2, flags
     err = capsys.readouterr().err
     assert err.startswith("jaxplore: error: ") and match in err, err
+
+
+def test_a_planners_text_setting_is_reachable_from_flags_toml_and_the_api(tmp_path, monkeypatch):
+  """li2020's ``region`` and ``eq21`` are words: ``--planner-set region=disc``, ``--region disc``
+  and a TOML ``[planner_set]`` reach the planner's settings; a word for a weight, a simulator
+  parameter or a numeric setting is refused naming it."""
+  from jaxplore.resolve import resolve
+  seen = {}
+  monkeypatch.setattr(runner, "run", lambda **kwargs: seen.update(kwargs) or 1 / 0)
+  toml = tmp_path / "run.toml"
+  toml.write_text('[planner_set]\neq21 = "cell"\n')
+  with pytest.raises(ZeroDivisionError):  # stop once the settings reached jaxplore.run
+    cli.main(["run", "--planner", "li2020", "--config", str(toml), "--planner-set", "region=disc",
+              "--k1", "0.1", "--devices", "1", "--no-progress"])
+  assert seen["planner_params"] == {"eq21": "cell", "region": "disc", "k1": 0.1}
+  seen.clear()
+  with pytest.raises(ZeroDivisionError):
+    cli.main(["run", "--planner", "li2020", "--region", "disc", "--devices", "1", "--no-progress"])
+  assert seen["planner_params"] == {"region": "disc"}
+  settings = resolve(RunSpec(world="lab", planner="li2020", robots=1, max_steps=5,
+                             planner_params={"region": "disc", "eq21": "cell"})).config.planner_settings
+  assert (settings.region, settings.eq21) == ("disc", "cell")
+  for planner_params, match in [({"k1": "abc"}, "weight k1 must be a number, got 'abc'"),
+                                ({"region": "wall"}, "region must be 'visible' or 'disc'"),
+                                ({"road_mark_m": "far"}, "setting road_mark_m must be a float")]:
+    with pytest.raises(ConfigError, match=match):
+      resolve(RunSpec(world="lab", planner="li2020", robots=1, max_steps=5,
+                      planner_params=planner_params))
+  with pytest.raises(ConfigError, match=r"params\['alpha'\] must be a number"):
+    RunSpec(params={"alpha": "high"})
+  assert cli.main(["run", "--planner", "li2020", "--alpha", "high", "--no-progress"]) == 2
