@@ -24,7 +24,8 @@ One planning round for one robot:
      unless a path leaves a cell's disc and later comes back into it (only around obstacles
      thinner than ``2 R_e`` or at zig-zags of weighted paths), where that cell is counted again.
      :func:`path_gain` computes the exact union for one path;
-   - the re-explore metric ``E_r`` (Eq 22) and the path length, the same way.
+   - the path length, and the re-explore metric ``E_r`` (Eq 22) as the gain is (computed only
+     when no path gains: it decides only then).
 4. Correction (Eq 18–19): det Σ never decreases along a path (Eq 14), so a candidate path is cut
    at its last waypoint with ``det Σ ≤ det Σ_max``: its nearest such ancestor in the tree.
 5. Selection: the corrected path with the largest gain (``select = 0``) or gain per metre
@@ -140,7 +141,8 @@ def init_memory(ctx, params):
   return {"unknown": jnp.int32(ctx.height * ctx.width), "driven": jnp.float32(0.0),
           "xy": jnp.zeros((2,), jnp.float32), "planned": jnp.bool_(False), "stuck": jnp.bool_(False)}
 
-CHANNELS = ("gain", "reexplore", "length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
+GEOMETRY = ("length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
+CHANNELS = ("gain", "reexplore") + GEOMETRY
 
 
 def validate(weights, params, ctx):
@@ -498,9 +500,9 @@ def _covariance_from_sums(sums, xy, xy_root, cov0):
   (``N`` has ``−Δy, Δx`` in its last column, and ``N N' = 0``), and ``J2 V_m J2ᵀ = V_m`` because
   V_m's x and y variances are equal. With ``a = (σ_d δd)²``, ``b = (σ_φ δφ)²`` and ``(dx, dy)``
   the displacement from waypoint m to node n, the sum needs only Σa, Σb, Σbx, Σby, Σbx², Σby²,
-  Σbxy along the path. Returns f32[N, 3, 3].
+  Σbxy along the path (``sums`` in the order of :data:`GEOMETRY`). Returns f32[N, 3, 3].
   """
-  s = {name: sums[:, i] for i, name in enumerate(CHANNELS)}
+  s = {name: sums[:, i] for i, name in enumerate(GEOMETRY)}
   x, y = xy[:, 0], xy[:, 1]
   sum_b_dx = x * s["b"] - s["bx"]
   sum_b_dy = y * s["b"] - s["by"]
@@ -543,21 +545,30 @@ def _ancestor(parent, k: int):
   return result
 
 
-def tree_quantities(config, view, robot, params, pred, gains):
-  """Per-node path sums (gain, re-explore, length, covariance terms) over the Dijkstra tree.
+def _tree_steps(config, robot, pred):
+  """Per node of the Dijkstra tree: (its parent (itself at the root and outside the tree),
+  whether it has one, the step toward the parent in rows and columns, the root's index)."""
+  w = config.width
+  pred_flat = pred.ravel()
+  idx = jnp.arange(pred_flat.shape[0], dtype=jnp.int32)
+  has_parent = pred_flat >= 0
+  parent = jnp.where(has_parent, pred_flat, idx)
+  d_row, d_col = parent // w - idx // w, parent % w - idx % w  # in {-1, 0, 1}
+  return parent, has_parent, d_row, d_col, robot.cell[0] * w + robot.cell[1]
 
-  Returns (sums f32[H*W, C], covariance f32[H*W, 3, 3], xy f32[H*W, 2] in metres relative to
-  the robot cell).
+
+def path_geometry(config, robot, params, pred):
+  """Per-node path length and the Eq 16-17 covariance at the end of every path in the tree.
+
+  Returns (sums f32[H*W, 8]: the running sums of :data:`GEOMETRY` along each path, covariance
+  f32[H*W, 3, 3], xy f32[H*W, 2] in metres relative to the robot cell).
   """
   h, w = config.height, config.width
   res = config.res
   pred_flat = pred.ravel()
   idx = jnp.arange(h * w, dtype=jnp.int32)
   rows, cols = idx // w, idx % w
-  has_parent = pred_flat >= 0
-  parent = jnp.where(has_parent, pred_flat, idx)
-  d_row, d_col = parent // w - rows, parent % w - cols  # toward the parent, in {-1, 0, 1}
-  root = robot.cell[0] * w + robot.cell[1]
+  parent, has_parent, d_row, d_col, _ = _tree_steps(config, robot, pred)
 
   xy = jnp.stack([(cols - robot.cell[1]) * res, (rows - robot.cell[0]) * res], -1).astype(jnp.float32)
   spacing = road_mark_cells(config)
@@ -586,6 +597,26 @@ def tree_quantities(config, view, robot, params, pred, gains):
     delta_phi = jnp.where(road_mark, jnp.arctan2(jnp.sin(turn), jnp.cos(turn)), 0.0)
   delta_d = jnp.where(has_parent, res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
 
+  a = (params.sigma_d * delta_d) ** 2
+  b = (params.sigma_phi * delta_phi) ** 2
+  x, y = xy[:, 0], xy[:, 1]
+  sums = path_sums(pred_flat, jnp.stack([delta_d, a, b, b * x, b * y, b * x * x, b * y * y,
+                                         b * x * y], -1))
+  cov = _covariance_from_sums(sums, xy, jnp.zeros(2), robot.cov)
+  return sums, cov, xy
+
+
+def path_gains(config, view, robot, pred, gains):
+  """Per-node Eq 20 sums of each channel of ``gains`` (f32[C, H, W]) over the regions of every
+  path's waypoints (``Settings.region``), each cell once per path. Returns f32[H*W, C].
+
+  The channels are independent: a channel's sums do not depend on the others passed with it.
+  """
+  h, w = config.height, config.width
+  n_channels = gains.shape[0]
+  pred_flat = pred.ravel()
+  idx = jnp.arange(h * w, dtype=jnp.int32)
+  parent, has_parent, d_row, d_col, root = _tree_steps(config, robot, pred)
   radius = config.r_e_cells
   settings = config.settings if config.settings is not None else Settings()
   if settings.region == "visible":
@@ -593,39 +624,39 @@ def tree_quantities(config, view, robot, params, pred, gains):
     # waypoint), or where it leaves it (seen from the waypoint it leaves), whichever sum is
     # larger; see visible_gains and Settings.region.
     full, crescent = visible_gains(gains, view.occupied, radius, VISIBLE_BLOCK[config.strategy])
-    full, crescent = full.reshape(2, -1), crescent.reshape(8, 2, -1)
+    full, crescent = full.reshape(n_channels, -1), crescent.reshape(8, n_channels, -1)
     code = (d_row + 1) * 3 + (d_col + 1)  # index into NEIGHBOURS_8 after removing (0, 0)
     toward, away = jnp.where(code > 4, code - 1, code), jnp.where(code < 4, 7 - code, 8 - code)
     in_tree = has_parent & (idx != root)
     enter = jnp.where(in_tree, crescent[toward, :, idx].T, 0.0)
     enter = jnp.where(idx == root, full[:, root][:, None], enter)
     leave = jnp.where(in_tree, crescent[away, :, parent].T, 0.0)
-    new_cells = jnp.concatenate([enter, leave])
-  else:
-    # Crescent of new cells per parent direction (the root gets its whole disc).
-    pad = int(math.floor(radius)) + 1
-    new_cells = jnp.zeros((2, h * w), jnp.float32)
-    for (di, dj), offsets in crescents(radius).items():
-      field = _shift_sum(gains, offsets, pad).reshape(2, -1)
-      new_cells = jnp.where((d_row == di) & (d_col == dj), field, new_cells)
-    disc = jnp.asarray(disc_offsets(radius), jnp.int32)
-    # wrap_negative_indices=False: a disc over the top or left border must read 0 there, not the
-    # last row or column.
-    disc_at_root = jnp.sum(gains.at[:, robot.cell[0] + disc[:, 0], robot.cell[1] + disc[:, 1]].get(
-        mode="fill", fill_value=0.0, wrap_negative_indices=False), axis=1)
-    new_cells = jnp.where(idx == root, disc_at_root[:, None], new_cells)
+    sums = path_sums(pred_flat, jnp.concatenate([enter, leave]).T)
+    return jnp.maximum(sums[:, :n_channels], sums[:, n_channels:] + full.T)
+  # Crescent of new cells per parent direction (the root gets its whole disc).
+  pad = int(math.floor(radius)) + 1
+  new_cells = jnp.zeros((n_channels, h * w), jnp.float32)
+  for (di, dj), offsets in crescents(radius).items():
+    field = _shift_sum(gains, offsets, pad).reshape(n_channels, -1)
+    new_cells = jnp.where((d_row == di) & (d_col == dj), field, new_cells)
+  disc = jnp.asarray(disc_offsets(radius), jnp.int32)
+  # wrap_negative_indices=False: a disc over the top or left border must read 0 there, not the
+  # last row or column.
+  disc_at_root = jnp.sum(gains.at[:, robot.cell[0] + disc[:, 0], robot.cell[1] + disc[:, 1]].get(
+      mode="fill", fill_value=0.0, wrap_negative_indices=False), axis=1)
+  new_cells = jnp.where(idx == root, disc_at_root[:, None], new_cells)
+  return path_sums(pred_flat, new_cells.T)
 
-  a = (params.sigma_d * delta_d) ** 2
-  b = (params.sigma_phi * delta_phi) ** 2
-  x, y = xy[:, 0], xy[:, 1]
-  values = jnp.stack([new_cells[0], new_cells[1], delta_d, a, b, b * x, b * y, b * x * x, b * y * y,
-                      b * x * y] + list(new_cells[2:]), -1)
-  sums = path_sums(pred_flat, values)
-  if settings.region == "visible":
-    counted = jnp.maximum(sums[:, :2], sums[:, len(CHANNELS):] + full.T)
-    sums = jnp.concatenate([counted, sums[:, 2:len(CHANNELS)]], -1)
-  cov = _covariance_from_sums(sums, xy, jnp.zeros(2), robot.cov)
-  return sums, cov, xy
+
+def tree_quantities(config, view, robot, params, pred, gains):
+  """Per-node path sums (gain, re-explore, length, covariance terms) over the Dijkstra tree:
+  :func:`path_gains` of both channels of ``gains`` beside :func:`path_geometry`.
+
+  Returns (sums f32[H*W, 10] in the order of :data:`CHANNELS`, covariance f32[H*W, 3, 3], xy
+  f32[H*W, 2] in metres relative to the robot cell).
+  """
+  geometry, cov, xy = path_geometry(config, robot, params, pred)
+  return jnp.concatenate([path_gains(config, view, robot, pred, gains), geometry], -1), cov, xy
 
 
 def average_observable_entropy(view: base.BeliefView, radius: float):
@@ -647,8 +678,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
                       max_sweeps=config.dijkstra_max_sweeps,
                       tiles_after_rounds=config.dijkstra_tiles_after_rounds)
   reachable = jnp.isfinite(sp.dist).ravel()
-  gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
-  sums, cov, _ = tree_quantities(config, view, robot, params, sp.pred, gains)
+  geometry, cov, _ = path_geometry(config, robot, params, sp.pred)
   root = robot.cell[0] * w + robot.cell[1]
   idx = jnp.arange(h * w, dtype=jnp.int32)
 
@@ -660,9 +690,28 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   candidates = jnp.zeros((h * w,), bool).at[jnp.where(cut >= 0, cut, h * w)].set(True, mode="drop")
   candidates = candidates & (idx != root)
 
+  # The Eq 20 gain of every path, then, only where no candidate gains (Eq 22's fallback), the
+  # re-explore metric: one channel of cell gains per pass of the same loop. The second pass
+  # (~40 % of a plan's time) is skipped by the plans that explore (108 of 113 in an episode of
+  # 8 robots on lab); under vmap a chunk runs it if any of its robots needs it (a batched
+  # lax.cond would run it for every chunk). The results are those of one two-channel pass.
+  gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
+
+  def more_passes(carry):
+    k, sums = carry
+    return (k == 0) | ((k == 1) & ~jnp.any(candidates & (sums[0] > 1e-6)))
+
+  def one_pass(carry):
+    k, sums = carry
+    channel = jax.lax.dynamic_slice_in_dim(gains, k, 1)
+    return k + 1, sums.at[k].set(path_gains(config, view, robot, sp.pred, channel)[:, 0])
+
+  _, (gain, reexplore) = jax.lax.while_loop(
+      more_passes, one_pass, (jnp.int32(0), jnp.zeros((2, h * w), jnp.float32)))
+
   # Eq 20 sums over every road-mark point of a path, its first (where the robot stands)
   # included: a path gains when the robot's own region still has entropy to lose.
-  gain, length, reexplore = sums[:, 0], sums[:, 2], sums[:, 1]
+  length = geometry[:, 0]
   score = jnp.where(weights["select"] > 0.5, gain / jnp.maximum(length, config.res), gain)
   score = jnp.where(candidates & (gain > 1e-6), score, -jnp.inf)
   best = reductions.argmax(score, w)
