@@ -73,7 +73,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(HERE.parent))
-from jaxplore import driver, memory, sim  # noqa: E402
+from jaxplore import driver, memory  # noqa: E402
 from jaxplore.maps import load_world  # noqa: E402
 from jaxplore.maps.io import load_map  # noqa: E402
 from jaxplore.resolve import resolve  # noqa: E402
@@ -107,6 +107,32 @@ def _load() -> str:
       return f.read().split()[0]
   except OSError:
     return "?"
+
+
+class ResultsFile:
+  """A markdown results file written as rows finish (a run cut short keeps what it measured):
+  a heading naming the command, the devices, the host and its load, then one table."""
+
+  def __init__(self, out: Path, script: str, title: str, timed: str, header: str):
+    self.out = out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    command = " ".join([f"python experiments/{script}", *sys.argv[1:]])
+    lines = [f"# {title}", "", f"Command: `{command}`  ",
+             f"Devices: {device_description()}; host: {_cpu_name()}, {os.cpu_count()} cores; "
+             f"jax {jax.__version__}, Python {platform.python_version()}; 1-minute load average "
+             f"{_load()} at the start.  ", f"Timed: {timed}", "", header]
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines), flush=True)
+
+  def add(self, line: str) -> None:
+    print(line, flush=True)
+    with self.out.open("a") as f:
+      f.write(line + "\n")
+
+  def close(self) -> None:
+    with self.out.open("a") as f:
+      f.write(f"\n1-minute load average at the end: {_load()}.\n")
+    print(f"wrote {self.out}")
 
 
 def peak_device_bytes() -> int | None:
@@ -187,21 +213,14 @@ def _peak(row: dict) -> str:
 
 def main(args):
   backend = jax.default_backend()
-  out = Path(args.out or HERE / "results" / f"bench_accelerator_{backend}.md")
-  out.parent.mkdir(parents=True, exist_ok=True)
-  command = " ".join(["python experiments/bench_accelerator.py", *sys.argv[1:]])
-  lines = [
-      "# Robot-steps per second and compile time by batch size and execution strategy", "",
-      f"Command: `{command}`  ",
-      f"Devices: {device_description()}; host: {_cpu_name()}, {os.cpu_count()} cores; "
-      f"jax {jax.__version__}, Python {platform.python_version()}; 1-minute load average "
-      f"{_load()} at the start.  ",
-      f"Timed: {args.steps} motion steps from the reset state in chunks of {args.chunk_steps} "
+  results = ResultsFile(
+      Path(args.out or HERE / "results" / f"bench_accelerator_{backend}.md"),
+      "bench_accelerator.py",
+      "Robot-steps per second and compile time by batch size and execution strategy",
+      f"{args.steps} motion steps from the reset state in chunks of {args.chunk_steps} "
       "(compiled ahead of time; compile and reset reported apart); robot-steps/s counts running "
       "robots only; 'per chunk' gives each chunk's rate in order. Random starts from each "
-      f"world's start area (seed {args.seed}).", "", HEADER]
-  out.write_text("\n".join(lines) + "\n")
-  print("\n".join(lines), flush=True)
+      f"world's start area (seed {args.seed}).", HEADER)
   for label in args.settings.split(","):
     grid = load_grid(label, args.explore_bench)
     for strategy in args.strategies.split(","):
@@ -210,21 +229,14 @@ def main(args):
         if last is not None and "run_s" in last:
           projected = last["run_s"] * robots / last["robots"]
           if projected > args.budget_s:
-            row = dict(setting=label, planner=SETTINGS[label][1], grid="x".join(map(str, grid.shape)),
-                       strategy=strategy, robots=robots, devices="",
-                       note=f"skipped: projected {projected:.0f} s > --budget-s {args.budget_s:g}")
-            print(format_row(row), flush=True)
-            with out.open("a") as f:
-              f.write(format_row(row) + "\n")
+            results.add(format_row(dict(
+                setting=label, planner=SETTINGS[label][1], grid="x".join(map(str, grid.shape)),
+                strategy=strategy, robots=robots, devices="",
+                note=f"skipped: projected {projected:.0f} s > --budget-s {args.budget_s:g}")))
             continue
-        row = time_setting(grid, label, strategy, robots, args)
-        last = row
-        print(format_row(row), flush=True)
-        with out.open("a") as f:
-          f.write(format_row(row) + "\n")
-  with out.open("a") as f:
-    f.write(f"\n1-minute load average at the end: {_load()}.\n")
-  print(f"wrote {out}")
+        last = time_setting(grid, label, strategy, robots, args)
+        results.add(format_row(last))
+  results.close()
 
 
 if __name__ == "__main__":

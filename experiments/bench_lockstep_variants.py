@@ -186,26 +186,19 @@ def main(args) -> None:
   sys.path.insert(0, str(HERE))
   import jax
 
-  from bench_accelerator import _cpu_name, _load, device_description
+  from bench_accelerator import ResultsFile
 
   variants = [v for v in args.variants.split(",") if v]
   unknown = set(variants) - set(VARIANTS)
   if unknown:
     raise SystemExit(f"unknown variants {sorted(unknown)}; known: {', '.join(VARIANTS)}")
-  backend = jax.default_backend()
-  out = Path(args.out or HERE / "results" / f"bench_lockstep_variants_{backend}.md")
-  out.parent.mkdir(parents=True, exist_ok=True)
-  command = " ".join(["python experiments/bench_lockstep_variants.py", *sys.argv[1:]])
-  lines = ["# Lockstep candidates against the engine as it is", "",
-           f"Command: `{command}`  ",
-           f"Devices: {device_description()}; host: {_cpu_name()}, {os.cpu_count()} cores; "
-           f"jax {jax.__version__}; 1-minute load average {_load()} at the start.  ",
-           f"Timed: {args.steps} motion steps from the reset state in chunks of "
-           f"{args.chunk_steps}, lockstep, each row its own process (compile apart).", "",
-           "| robots | variant | compile s | robot-steps/s | per chunk | final state against head |",
-           "|---|---|---|---|---|---|"]
-  out.write_text("\n".join(lines) + "\n")
-  print("\n".join(lines), flush=True)
+  results = ResultsFile(
+      Path(args.out or HERE / "results" / f"bench_lockstep_variants_{jax.default_backend()}.md"),
+      "bench_lockstep_variants.py", "Lockstep candidates against the engine as it is",
+      f"{args.steps} motion steps from the reset state in chunks of {args.chunk_steps}, "
+      "lockstep, each row its own process (compile apart).",
+      "| robots | variant | compile s | robot-steps/s | per chunk | final state against head |\n"
+      "|---|---|---|---|---|---|")
   scratch = Path(tempfile.mkdtemp(prefix="lockstep_variants_"))
   for robots in args.robots.split(","):
     reference = None
@@ -236,12 +229,8 @@ def main(args) -> None:
           per_chunk = " / ".join(f"{r:,.0f}" for r in row["chunk_rates"])
           line = (f"| {robots} | {variant} | {row['compile_s']:.1f} | {row['rate']:,.0f} "
                   f"| {per_chunk} | {verdict} |")
-      print(line, flush=True)
-      with out.open("a") as f:
-        f.write(line + "\n")
-  with out.open("a") as f:
-    f.write(f"\n1-minute load average at the end: {_load()}.\n")
-  print(f"wrote {out}")
+      results.add(line)
+  results.close()
 
 
 if __name__ == "__main__":

@@ -27,8 +27,6 @@ Rows are printed and written as they finish to ``experiments/results/stage_times
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -40,8 +38,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
-from bench_accelerator import (EXPLORE_BENCH, SETTINGS, _cpu_name, _int_list, _load,  # noqa: E402
-                               device_description, load_grid)
+from bench_accelerator import (EXPLORE_BENCH, SETTINGS, ResultsFile, _int_list,  # noqa: E402
+                               load_grid)
 
 from jaxplore import driver, memory, sim  # noqa: E402
 from jaxplore.resolve import resolve  # noqa: E402
@@ -126,33 +124,19 @@ def format_row(row: dict) -> str:
 
 
 def main(args):
-  backend = jax.default_backend()
-  out = Path(args.out or HERE / "results" / f"stage_times_{backend}.md")
-  out.parent.mkdir(parents=True, exist_ok=True)
-  command = " ".join(["python experiments/stage_times.py", *sys.argv[1:]])
-  lines = [
-      "# Where a step's time goes: planning round and motion step", "",
-      f"Command: `{command}`  ",
-      f"Devices: {device_description()}; host: {_cpu_name()}, {os.cpu_count()} cores; "
-      f"jax {jax.__version__}, Python {platform.python_version()}; 1-minute load average "
-      f"{_load()} at the start.  ",
-      f"Timed: each stage jitted alone on the state after the warm-up, the median of "
-      f"{args.repeats} calls (the first call, with its compile, apart). 'plan, all': every "
-      "robot plans; 'plan, as needed': the robots that need to; 'step' = running robots / "
-      "(plan as needed + motion).", "", HEADER]
-  out.write_text("\n".join(lines) + "\n")
-  print("\n".join(lines), flush=True)
+  results = ResultsFile(
+      Path(args.out or HERE / "results" / f"stage_times_{jax.default_backend()}.md"),
+      "stage_times.py", "Where a step's time goes: planning round and motion step",
+      f"each stage jitted alone on the state after the warm-up, the median of {args.repeats} "
+      "calls (the first call, with its compile, apart). 'plan, all': every robot plans; 'plan, "
+      "as needed': the robots that need to; 'step' = running robots / (plan as needed + "
+      "motion).", HEADER)
   for label in args.settings.split(","):
     grid = load_grid(label, args.explore_bench)
     for strategy in args.strategies.split(","):
       for robots in args.robots:
-        line = format_row(stage_row(grid, label, strategy, robots, args))
-        print(line, flush=True)
-        with out.open("a") as f:
-          f.write(line + "\n")
-  with out.open("a") as f:
-    f.write(f"\n1-minute load average at the end: {_load()}.\n")
-  print(f"wrote {out}")
+        results.add(format_row(stage_row(grid, label, strategy, robots, args)))
+  results.close()
 
 
 if __name__ == "__main__":
