@@ -89,11 +89,9 @@ def integrate_observation_whole_grid(logodds, robot, observed, reachable, params
   import jax
   import jax.numpy as jnp
 
-  from jaxplore import mapping
+  from jaxplore import mapping, sensor
 
-  _, h, w = logodds.shape
-  n_rows, n_cols, th, tw = observed.shape
-  grid = observed.transpose(0, 2, 1, 3).reshape(n_rows * th, n_cols * tw)[:h, :w]
+  grid = sensor.grid_of_tiles(observed, logodds.shape[1:])
   old = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
   new = mapping.update_logodds(old, grid, params)
   d_entropy = jnp.sum(mapping.entropy_of_logodds(new) - mapping.entropy_of_logodds(old))

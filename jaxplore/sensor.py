@@ -384,7 +384,11 @@ def observation_tiles(observed, shape):
 
 def observation_grid(observed, shape):
   """The observation as an int8[H, W] grid: 0 unobserved, 1 seen free, 2 seen occupied."""
-  tiles = observation_tiles(observed, shape)
+  return grid_of_tiles(observation_tiles(observed, shape), shape)
+
+
+def grid_of_tiles(tiles, shape):
+  """:func:`observation_tiles`' tiles laid out as the (H, W) grid again."""
   n_rows, n_cols = tiles.shape[:2]
   grid = tiles.transpose(0, 2, 1, 3).reshape(n_rows * OBS_TILE, n_cols * OBS_TILE)
   return grid[: shape[0], : shape[1]]

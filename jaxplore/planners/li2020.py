@@ -696,10 +696,11 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   # 8 robots on lab); under vmap a chunk runs it if any of its robots needs it (a batched
   # lax.cond would run it for every chunk). The results are those of one two-channel pass.
   gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
+  gaining = lambda gain: candidates & (gain > 1e-6)  # the candidates an exploring plan weighs
 
   def more_passes(carry):
     k, sums = carry
-    return (k == 0) | ((k == 1) & ~jnp.any(candidates & (sums[0] > 1e-6)))
+    return (k == 0) | ((k == 1) & ~jnp.any(gaining(sums[0])))
 
   def one_pass(carry):
     k, sums = carry
@@ -713,7 +714,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   # included: a path gains when the robot's own region still has entropy to lose.
   length = geometry[:, 0]
   score = jnp.where(weights["select"] > 0.5, gain / jnp.maximum(length, config.res), gain)
-  score = jnp.where(candidates & (gain > 1e-6), score, -jnp.inf)
+  score = jnp.where(gaining(gain), score, -jnp.inf)
   best = reductions.argmax(score, w)
   explore = jnp.isfinite(score[best])
 
