@@ -90,6 +90,10 @@ _TIGHT_RTOL = 2.0**-20
 
 DEFAULT_CHUNK = 4
 
+# Loop bounds are int32 counters; the default bounds of a large map (H * W rounds, times the
+# tile steps or line passes in a round) can pass 2**31 - 1, which then caps them.
+_INT32_MAX = 2**31 - 1
+
 # How distances are computed: "sweeps" (cone sweeping, the default) or "relaxation" (every cell
 # at once, pass after pass; see the module docstring).
 METHODS = ("sweeps", "relaxation")
@@ -401,7 +405,7 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
 
   def not_done(carry):
     _, key, steps, _ = carry
-    return jnp.any(jnp.isfinite(key)) & (steps < max_steps)
+    return jnp.any(jnp.isfinite(key)) & (steps < min(max_steps, _INT32_MAX))
 
   init = (dist, key, jnp.int32(0), jnp.zeros_like(dist[0, 0], jnp.int32))
   dist, _, _, per_grid = lax.while_loop(not_done, step, init)
@@ -433,7 +437,8 @@ def _solve_chunk(node_cost: jax.Array, source: jax.Array, max_sweeps: int,
 
   if method == "relaxation":
     return _relax_to_fixed_point(dist, cost_rows, diagonal_rows, source,
-                                 max_sweeps * (node_cost.shape[1] + node_cost.shape[2]))
+                                 min(max_sweeps * (node_cost.shape[1] + node_cost.shape[2]),
+                                     _INT32_MAX))
 
   whole_grid_rounds = tiles_after_rounds if 0 < tiles_after_rounds < max_sweeps else max_sweeps
 

@@ -569,3 +569,14 @@ def test_tile_by_tile_under_shard_map():
                         in_specs=(spec, spec), out_specs=spec)
   sharded = jax.jit(solve)(costs, sources)
   _same_but_rounds(sharded, shortest_paths_batched(costs, sources, tiles_after_rounds=0))
+
+
+@pytest.mark.parametrize("method", ["sweeps", "relaxation"])
+def test_default_bounds_of_a_large_map_fit_the_loop_counters(method):
+  """The default bound on a 1,100 x 1,100 map (H * W rounds, times the tile steps or the line
+  passes of a round) passes 2**31 - 1: it caps the int32 loop counters instead of failing to
+  trace (it did: OverflowError on real maps of ~1,200 x 1,600 cells)."""
+  shape = jax.ShapeDtypeStruct((1, 1100, 1100), jnp.float32)
+  source = jax.ShapeDtypeStruct((1, 2), jnp.int32)
+  result = jax.eval_shape(lambda c, s: shortest_paths_batched(c, s, method=method), shape, source)
+  assert result.dist.shape == (1, 1100, 1100) and result.pred.dtype == jnp.int32
