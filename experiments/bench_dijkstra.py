@@ -48,6 +48,9 @@ def _parse_args(argv=None):
       choices=["sweeps", "sweeps-only", "relaxation"],
       help="solver methods (jaxplore.graph.dijkstra.METHODS; 'sweeps' is the CPU's, which "
            "finishes unsettled grids tile by tile; 'sweeps-only' never does)")
+  add("--tiles-after-rounds", type=int, nargs="+", default=None,
+      help="for 'sweeps': whole-grid rounds before the tile-by-tile finish, one row each "
+           "(default: the solver's TILES_AFTER_ROUNDS)")
   add("--repeats", type=int, default=3, help="timed runs per setting (the best is kept)")
   add("--scipy-maps", type=int, default=32, help="maps timed with SciPy per map type")
   add("--max-batch-maze", type=int, default=256, help="largest maze batch timed")
@@ -213,10 +216,13 @@ def time_scipy(costs, sources, repeats):
   return 1e3 * best / len(costs), graphs
 
 
-def build_solver(devices: int, chunk: int, method: str = "sweeps"):
+def build_solver(devices: int, chunk: int, method: str = "sweeps",
+                 tiles_after_rounds: int | None = None):
   """A jitted batched solver; with devices > 1, the batch axis is sharded over a 1-D mesh."""
   options = dict(method="sweeps", tiles_after_rounds=0) if method == "sweeps-only" else (
       dict(method=method))
+  if method == "sweeps" and tiles_after_rounds is not None:
+    options["tiles_after_rounds"] = tiles_after_rounds
   solve = lambda costs, sources: shortest_paths_batched(costs, sources, chunk=chunk, **options)
   if devices == 1:
     return jax.jit(solve), None
@@ -271,16 +277,19 @@ def run_worker(args):
     scipy_ms, graphs = time_scipy(
         all_costs[: args.scipy_maps], all_sources[: args.scipy_maps], args.repeats
     )
-    for method, chunk, batch in ((m, c, b) for m in args.methods for c in args.chunks
-                                 for b in batches):
+    variants = [(m, n) for m in args.methods
+                for n in (args.tiles_after_rounds or [None] if m == "sweeps" else [None])]
+    for (method, tiles_after), chunk, batch in ((v, c, b) for v in variants
+                                                for c in args.chunks for b in batches):
       if batch % devices:
         continue  # B = 1 is timed by the 1-device worker
-      solver, sharding = build_solver(devices, chunk, method)
+      solver, sharding = build_solver(devices, chunk, method, tiles_after)
+      label = method if tiles_after is None else f"sweeps, tiles after {tiles_after}"
       costs, sources = all_costs[:batch], all_sources[:batch]
       compile_s, jax_ms, result = time_jax(solver, sharding, costs, sources, args.repeats)
       sweeps = np.asarray(result.sweeps)
       rows.append(dict(
-          kind=kind, method=method, batch=batch, devices=devices,
+          kind=kind, method=label, batch=batch, devices=devices,
           chunk=min(chunk, batch // devices),
           compile_s=compile_s, jax_ms=jax_ms, scipy_ms=scipy_ms, speedup=scipy_ms / jax_ms,
           sweeps_mean=float(sweeps.mean()), sweeps_max=int(sweeps.max()),

@@ -23,7 +23,7 @@ A grid still unsettled after ``TILES_AFTER_ROUNDS`` rounds (a maze) is finished 
 the sweeps visit them all, so the rounds go on only inside the 16 x 16 tiles that a relaxation
 could still lower, least first, each settled by the same sweeps and check with its neighbours'
 edge cells held fixed. On the maze benchmark (``experiments/bench_dijkstra.py``) a grid takes
-16 rounds and then ~7 rounds' worth of tile visits, 2.8x sooner than the ~134 rounds of the
+6 rounds and then ~8 rounds' worth of tile visits, ~3.3x sooner than the ~134 rounds of the
 sweeps alone.
 
 On an accelerator the sweeps are a chain of tiny kernels (a line step each: ~2,800 launches a
@@ -101,10 +101,12 @@ METHODS = ("sweeps", "relaxation")
 # A grid that the sweeps have not settled after this many rounds (a maze: its paths turn at
 # every corridor) is finished tile by tile (:func:`_finish_by_tiles`): tiles of TILE x TILE
 # cells, TILES_PER_STEP of every grid per step (measured best on a 256 x 256 maze, XLA:CPU).
-# After 16 rounds: room-like maps settle in ~3-6 and never get there; the built-in 200 x 200
-# maze (12-cell corridors) settles in 10-18, where the tiles do not pay; 256 x 256 mazes with
-# 3-cell corridors need 80-200, and the tiles finish them ~2.8x sooner.
-TILES_AFTER_ROUNDS = 16
+# After 6 rounds: room-like and real maps settle in ~3-6 and seldom get there; 256 x 256 mazes
+# with 3-cell corridors need 80-200 rounds by the sweeps alone, and 6 rounds then the tiles
+# finish them ~3.3x sooner (after 4: a little sooner on mazes, ~10 % slower on willow, where a
+# few grids need 5-7 rounds; after 16: 1.2x slower on mazes). The built-in 200 x 200 maze
+# (12-cell corridors, 10-18 rounds) takes the same time either way.
+TILES_AFTER_ROUNDS = 6
 TILE = 16
 TILES_PER_STEP = 2
 
@@ -164,7 +166,7 @@ def default_max_sweeps(height: int, width: int) -> int:
   ``H * W - 1`` moves, and each round fixes at least its next move (every move goes along one
   of the 4 sweeps), so after the last round needed the fixed-point check finds nothing. Real maps
   stop long before: ~5 rounds for 256 x 256 room-like worlds, ~150 for 256 x 256 mazes by the
-  sweeps alone (~23 whole-grid rounds' worth when finished tile by tile).
+  sweeps alone (~14 whole-grid rounds' worth when finished tile by tile).
   """
   return height * width
 
