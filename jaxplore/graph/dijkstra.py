@@ -23,7 +23,7 @@ A grid still unsettled after ``TILES_AFTER_ROUNDS`` rounds (a maze) is finished 
 the sweeps visit them all, so the rounds go on only inside the 16 x 16 tiles that a relaxation
 could still lower, least first, each settled by the same sweeps and check with its neighbours'
 edge cells held fixed. On the maze benchmark (``experiments/bench_dijkstra.py``) a grid takes
-6 rounds and then ~8 rounds' worth of tile visits, ~3.3x sooner than the ~134 rounds of the
+6 rounds and then ~8 rounds' worth of tile visits, 3.5-5x sooner than the ~134 rounds of the
 sweeps alone.
 
 On an accelerator the sweeps are a chain of tiny kernels (a line step each: ~2,800 launches a
@@ -103,7 +103,7 @@ METHODS = ("sweeps", "relaxation")
 # cells, TILES_PER_STEP of every grid per step (measured best on a 256 x 256 maze, XLA:CPU).
 # After 6 rounds: room-like and real maps settle in ~3-6 and seldom get there; 256 x 256 mazes
 # with 3-cell corridors need 80-200 rounds by the sweeps alone, and 6 rounds then the tiles
-# finish them ~3.3x sooner (after 4: a little sooner on mazes, ~10 % slower on willow, where a
+# finish them 3.5-5x sooner (after 4: a little sooner on mazes, ~10 % slower on willow, where a
 # few grids need 5-7 rounds; after 16: 1.2x slower on mazes). The built-in 200 x 200 maze
 # (12-cell corridors, 10-18 rounds) takes the same time either way.
 TILES_AFTER_ROUNDS = 6
