@@ -172,7 +172,8 @@ def _sweep(args, extra) -> int:
         raise ConfigError(f"--grid takes NAME=V1,V2,..., got {item!r}")
       name, values = item.split("=", 1)
       try:
-        grid = dict(grid or {}, **{name.strip(): [float(v) for v in values.split(",") if v.strip()]})
+        grid = dict(grid or {}, **{name.strip(): [_number_or_text(v, True)
+                                                   for v in values.split(",") if v.strip()]})
       except ValueError:
         raise ConfigError(f"--grid {name}: {values!r} is not a list of numbers") from None
     random = None
@@ -281,7 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
   sw.add_argument("--planner", nargs="+", default=None, metavar="PLANNER",
                   help=f"one or more planners (default {RunSpec.planner})")
   sw.add_argument("--grid", nargs="+", default=None, metavar="NAME=V1,V2,...",
-                  help="values of each swept parameter, e.g. alpha=1.0,1.5 k1=0,0.2 k2=0.6,0.9")
+                  help="values of each swept parameter, e.g. alpha=1.0,1.5 k1=0,0.2 k2=0.6,0.9 "
+                       "(words for a planner's word-valued setting: region=visible,disc)")
   sw.add_argument("--random", nargs="+", default=None, metavar="NAME=LOW:HIGH[:log]",
                   help="random search ranges (uniform, or log-uniform with :log)")
   sw.add_argument("--samples", type=int, default=None, help="random points drawn from the --random ranges")

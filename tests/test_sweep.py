@@ -442,3 +442,62 @@ def test_plot_on_a_missing_or_empty_folder_is_one_clear_line(tmp_path, capsys):
     assert cli.main(["plot", str(folder)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("jaxplore: error: ") and match in err and "Traceback" not in err
+
+
+def test_a_word_valued_setting_is_a_grid_axis(reference, tmp_path, monkeypatch):
+  """li2020's ``region`` swept by its words: a group (a compiled program) per word, the words in
+  the table and in each group's resolved settings, and an interrupted sweep resumes from its
+  schedule (words kept through its JSON) to the uninterrupted table."""
+  grid = {"region": ["visible", "disc"]}
+  out = tmp_path / "cut"
+  real = execute.run_chunk
+  calls = []
+
+  def interrupt_second_chunk(*args, **kwargs):
+    calls.append(1)
+    if len(calls) == 2:
+      raise KeyboardInterrupt
+    return real(*args, **kwargs)
+
+  monkeypatch.setattr(execute, "run_chunk", interrupt_second_chunk)
+  with pytest.raises(KeyboardInterrupt, match="--resume"):
+    jaxplore.sweep(grid, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  monkeypatch.setattr(execute, "run_chunk", real)
+  resumed = jaxplore.sweep(resume=out, progress=False, quiet=True, devices=1)
+  assert resumed.timing["chunks_skipped"] == 1 and resumed.timing["chunks_run"] == 1
+
+  episodes = pd.read_parquet(out / "episodes.parquet")
+  assert list(episodes.region) == ["visible", "visible", "disc", "disc"]
+  groups = json.loads((out / "config.json").read_text())["groups"]
+  assert [g["sim_config"]["planner_settings"]["region"] for g in groups] == ["visible", "disc"]
+  whole = jaxplore.sweep(grid, seeds=2, out=tmp_path / "whole", chunk_size=3, **SETTINGS)
+  pd.testing.assert_frame_equal(episodes, whole.episodes)
+
+
+def test_grid_words_are_refused_where_a_number_is_meant():
+  """Words only for a planner's word-valued setting, never mixed with numbers, each once, and
+  each one the planner knows: refused before any compute, naming the setting."""
+  with pytest.raises(ConfigError, match="grid value of 'alpha' must be a number"):
+    jaxplore.sweep({"alpha": ["high"]}, seeds=1, **SETTINGS)
+  with pytest.raises(ConfigError, match="mixes words and numbers"):
+    jaxplore.sweep({"region": ["disc", 1.0]}, seeds=1, **SETTINGS)
+  with pytest.raises(ConfigError, match="repeats a value"):
+    jaxplore.sweep({"region": ["disc", "disc"]}, seeds=1, **SETTINGS)
+  with pytest.raises(ConfigError, match="region must be 'visible' or 'disc', got 'cube'"):
+    jaxplore.sweep({"region": ["disc", "cube"]}, seeds=1, **SETTINGS)
+  assert settings.normalise_grid({"region": "disc"}) == {"region": ("disc",)}
+
+
+def test_cli_grid_takes_words_for_a_word_valued_setting(monkeypatch):
+  """``--grid region=disc,visible`` reaches the sweep as words (numbers stay numbers)."""
+  class Called(Exception):
+    pass
+
+  def capture(grid=None, **kwargs):
+    raise Called(grid)
+
+  monkeypatch.setattr(sweeps, "sweep", capture)
+  with pytest.raises(Called) as called:
+    cli.main(["sweep", "--world", "open", "--planner", "li2020", "--grid", "region=disc,visible",
+              "alpha=1,2", "--no-progress", "--quiet"])
+  assert called.value.args[0] == {"region": ["disc", "visible"], "alpha": [1.0, 2.0]}

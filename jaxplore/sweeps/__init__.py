@@ -76,7 +76,8 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
     grid: parameter name -> list of values; names are simulator parameters, or a planner's
       weights or static settings (e.g. ``{"alpha": [1.0, 1.5], "k1": [0, 0.2]}``). Every
       combination is a setting. A name that a planner does not have is not swept for that
-      planner. Static names (``r_e``, a planner's settings) run each value as a compile group.
+      planner. Static names (``r_e``, a planner's settings) run each value as a compile group;
+      a word-valued setting takes words (``{"region": ["visible", "disc"]}`` for li2020).
     seeds: seeds per setting (``range(seeds)``) or a list of seeds (default 8); seed ``s`` starts
       at the same pose in every setting (its key is ``PRNGKey(s)``).
     world: a world (name, map YAML path or GridMap) or a list of worlds (default: ``jaxplore

@@ -70,7 +70,7 @@ def run_chunk(group_run: GroupRun, chunk: Chunk, n_dev: int, tally: dict, times:
 def label_episodes(episodes: pd.DataFrame, group_run: GroupRun, chunk: Chunk,
                    all_names) -> pd.DataFrame:
   """The chunk's episodes with ``world``, ``planner``, ``seed`` and one column per swept name
-  (NaN where the group's planner does not have it)."""
+  (NaN where the group's planner does not have it; a column of words holds strings)."""
   group = group_run.group
   episodes.insert(0, "world", group_run.resolved.grid.name)
   episodes.insert(1, "planner", group.planner)
@@ -78,7 +78,8 @@ def label_episodes(episodes: pd.DataFrame, group_run: GroupRun, chunk: Chunk,
   for k, name in enumerate(all_names):
     if name in group.names:
       j = group.names.index(name)
-      column = np.asarray([r.values[j] for r in chunk.rows], np.float64)
+      values = [r.values[j] for r in chunk.rows]
+      column = np.asarray(values, object if isinstance(values[0], str) else np.float64)
     else:
       column = np.full(len(chunk.rows), np.nan)
     episodes.insert(3 + k, name, column)

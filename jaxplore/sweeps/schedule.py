@@ -29,7 +29,7 @@ from jaxplore.planners import get_planner
 from jaxplore.resolve import Resolved, config_difference, resolve
 from jaxplore.results import read_world
 from jaxplore.runspec import RunSpec, is_static, kind_of
-from jaxplore.sweeps.settings import SweepSpec, WorldEntry, random_samples
+from jaxplore.sweeps.settings import SweepSpec, WorldEntry, grid_value, random_samples
 
 SCHEDULE_FILE = "sweep_schedule.json"
 SCHEDULE_FORMAT = "jaxplore-sweep-schedule"
@@ -47,7 +47,7 @@ class Row:
 
   row: int
   seed: int
-  values: tuple[float, ...]
+  values: tuple[float | str, ...]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,8 +93,8 @@ class Group:
   @classmethod
   def from_json(cls, data: dict) -> Group:
     return cls(world=int(data["world"]), planner=str(data["planner"]), names=tuple(data["names"]),
-               rows=tuple(Row(int(r["row"]), int(r["seed"]), tuple(float(v) for v in r["values"]))
-                          for r in data["rows"]),
+               rows=tuple(Row(int(r["row"]), int(r["seed"]),
+                              tuple(grid_value(v) for v in r["values"])) for r in data["rows"]),
                chunk_size=int(data["chunk_size"]), chunk_epochs=int(data["chunk_epochs"]),
                max_steps=data.get("max_steps"), sim_config=data.get("sim_config"),
                first_chunk=int(data["first_chunk"]))

@@ -55,7 +55,8 @@ class SweepSpec:
 
   Attributes:
     worlds, planners: the group axes. seeds: the seeds of every setting.
-    grid: name -> values (every combination is a setting).
+    grid: name -> values (every combination is a setting): numbers, or words for a planner's
+      word-valued static setting (li2020's ``region``).
     random: name -> range; ``samples`` points drawn with ``random_seed`` (each combined with
       every grid combination).
     base: the run settings every row shares (its :data:`jaxplore.runspec.SHARED` fields).
@@ -64,7 +65,7 @@ class SweepSpec:
   worlds: tuple[WorldEntry, ...]
   planners: tuple[str, ...]
   seeds: tuple[int, ...]
-  grid: Mapping[str, tuple[float, ...]]
+  grid: Mapping[str, tuple[float | str, ...]]
   random: Mapping[str, RandomRange]
   samples: int | None
   random_seed: int
@@ -90,7 +91,7 @@ class SweepSpec:
     whose ``run`` lacks the newer settings: they take their defaults)."""
     return cls(worlds=tuple(WorldEntry(**w) for w in data["worlds"]),
                planners=tuple(data["planners"]), seeds=tuple(int(s) for s in data["seeds"]),
-               grid={k: tuple(float(x) for x in v) for k, v in data["grid"].items()},
+               grid={k: tuple(grid_value(x) for x in v) for k, v in data["grid"].items()},
                random={k: RandomRange(**v) for k, v in data["random"].items()},
                samples=data["samples"], random_seed=int(data["random_seed"]),
                base=RunSpec.from_json(data["run"]))
@@ -104,8 +105,19 @@ def f32(value: float) -> float:
   return float(np.float32(value))
 
 
-def normalise_grid(grid) -> dict[str, tuple[float, ...]]:
-  """``{name: (values)}`` with every value a finite number (a single number counts as one value)."""
+def grid_value(value) -> float | str:
+  """A grid value as the schedule keeps it: a word as it is, a number as a float."""
+  return value if isinstance(value, str) else float(value)
+
+
+def is_word_axis(values) -> bool:
+  """Whether a grid axis holds words (a planner's word-valued setting) rather than numbers."""
+  return bool(values) and all(isinstance(v, str) for v in values)
+
+
+def normalise_grid(grid) -> dict[str, tuple[float | str, ...]]:
+  """``{name: (values)}`` with every value a finite number, or every value a word (a single
+  value counts as one); whether a word suits the name is :func:`make_spec`'s check."""
   if grid is None:
     return {}
   if not isinstance(grid, Mapping):
@@ -114,11 +126,21 @@ def normalise_grid(grid) -> dict[str, tuple[float, ...]]:
   for name, values in grid.items():
     if isinstance(values, (int, float, np.integer, np.floating)) and not isinstance(values, bool):
       values = [values]
-    if isinstance(values, (str, bytes)) or not hasattr(values, "__iter__"):
+    if isinstance(values, str):
+      values = [values]
+    if isinstance(values, bytes) or not hasattr(values, "__iter__"):
       raise ConfigError(f"grid {name!r} must be a list of numbers, got {values!r}")
-    values = tuple(number(v, f"grid value of {name!r}") for v in values)
+    values = list(values)
     if not values:
       raise ConfigError(f"sweep grid for {name!r} is empty")
+    if any(isinstance(v, str) for v in values):
+      if not is_word_axis(values):
+        raise ConfigError(f"grid {name!r} mixes words and numbers: {values!r}")
+      values = tuple(v.strip() for v in values)
+      if len(set(values)) != len(values):
+        raise ConfigError(f"grid {name!r} repeats a value: {list(values)}")
+    else:
+      values = tuple(number(v, f"grid value of {name!r}") for v in values)
     out[str(name)] = values
   return out
 
@@ -254,6 +276,10 @@ def make_spec(grid=None, random=None, samples=None, random_seed=None, seeds=None
       raise ConfigError(f"cannot sweep {name!r}: not a simulator parameter nor a weight of "
                         f"planner {' or '.join(repr(p) for p in planners)} "
                         f"({', '.join(weights) or 'none'})")
+  for name, values in grid.items():
+    if is_word_axis(values) and not any(kind_of(name, s) == "setting" for s in specs.values()):
+      raise ConfigError(f"grid value of {name!r} must be a number, got {list(values)} (words "
+                        f"are for a planner's word-valued setting, such as li2020's region)")
   for what, values in (("params", base.params), ("planner_params", base.planner_params)):
     for name, value in values.items():
       if isinstance(value, tuple):
@@ -339,5 +365,5 @@ def load_config(path) -> dict:
 
 
 __all__ = ["DEFAULT_SEEDS", "RandomRange", "SweepSpec", "WorldEntry", "f32", "load_config",
-           "make_spec", "normalise_grid", "normalise_random", "parse_random_spec",
-           "random_samples", "seeds_of", "world_entry", "SWEEP_TOML_KEYS", "AXES"]
+           "make_spec", "normalise_grid", "grid_value", "is_word_axis", "normalise_random",
+           "parse_random_spec", "random_samples", "seeds_of", "world_entry", "SWEEP_TOML_KEYS", "AXES"]
