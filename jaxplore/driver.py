@@ -20,7 +20,7 @@ import jax
 import numpy as np
 
 from jaxplore import interrupts, sim
-from jaxplore.config import SimConfig
+from jaxplore.config import ConfigError, SimConfig
 
 # The event JAX's monitoring reports once per XLA backend compile, with its duration.
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
@@ -39,9 +39,13 @@ def shard_count(robots: int, devices: int) -> int:
 
 
 def local_devices(requested: int | None) -> int:
-  """``requested`` local devices (default all), at least 1 and at most what there is."""
+  """``requested`` local devices (default all), at most what there is; a count below 1 (or not
+  a whole number) is refused."""
+  if requested is not None and (isinstance(requested, bool)
+                                or not isinstance(requested, (int, np.integer)) or requested < 1):
+    raise ConfigError(f"devices must be a positive integer, got {requested!r}")
   n_local = len(jax.local_devices())
-  return n_local if requested is None else max(1, min(int(requested), n_local))
+  return n_local if requested is None else min(int(requested), n_local)
 
 
 @functools.lru_cache(maxsize=32)

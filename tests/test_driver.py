@@ -3,11 +3,13 @@ state and records of the same chunks. A stand-in chunk function replaces the eng
 loop's bookkeeping is tested without compiling anything."""
 
 import chex
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxplore import driver
+from jaxplore.config import ConfigError
 
 
 @chex.dataclass(frozen=True)
@@ -92,3 +94,13 @@ def test_ctrl_c_propagates_unless_interruptible():
 def test_shard_count_divides_the_batch():
   assert driver.shard_count(16, 2) == 2 and driver.shard_count(9, 2) == 1
   assert driver.shard_count(6, 4) == 2 and driver.shard_count(3, 3) == 3
+
+
+@pytest.mark.parametrize("requested", [0, -2, 1.5, True, "2"])
+def test_a_device_count_below_one_or_not_whole_is_refused(requested):
+  """``devices=0`` used to run silently on one device (and the CLI's --devices 0 set the host
+  device count to the cores first); every bad count is now refused naming it."""
+  with pytest.raises(ConfigError, match="devices must be a positive integer"):
+    driver.local_devices(requested)
+  assert driver.local_devices(None) == len(jax.local_devices())
+  assert driver.local_devices(10**6) == len(jax.local_devices())  # at most what there is
