@@ -447,7 +447,8 @@ def test_plot_on_a_missing_or_empty_folder_is_one_clear_line(tmp_path, capsys):
 def test_a_word_valued_setting_is_a_grid_axis(reference, tmp_path, monkeypatch):
   """li2020's ``region`` swept by its words: a group (a compiled program) per word, the words in
   the table and in each group's resolved settings, and an interrupted sweep resumes from its
-  schedule (words kept through its JSON) to the uninterrupted table."""
+  schedule (words kept through its JSON) to the uninterrupted table. (Groups of 3 rows: the
+  ``visible`` group is the reference's program, only ``disc`` compiles.)"""
   grid = {"region": ["visible", "disc"]}
   out = tmp_path / "cut"
   real = execute.run_chunk
@@ -461,16 +462,16 @@ def test_a_word_valued_setting_is_a_grid_axis(reference, tmp_path, monkeypatch):
 
   monkeypatch.setattr(execute, "run_chunk", interrupt_second_chunk)
   with pytest.raises(KeyboardInterrupt, match="--resume"):
-    jaxplore.sweep(grid, seeds=2, out=out, chunk_size=3, **SETTINGS)
+    jaxplore.sweep(grid, seeds=3, out=out, chunk_size=3, **SETTINGS)
   monkeypatch.setattr(execute, "run_chunk", real)
   resumed = jaxplore.sweep(resume=out, progress=False, quiet=True, devices=1)
   assert resumed.timing["chunks_skipped"] == 1 and resumed.timing["chunks_run"] == 1
 
   episodes = pd.read_parquet(out / "episodes.parquet")
-  assert list(episodes.region) == ["visible", "visible", "disc", "disc"]
+  assert list(episodes.region) == ["visible"] * 3 + ["disc"] * 3
   groups = json.loads((out / "config.json").read_text())["groups"]
   assert [g["sim_config"]["planner_settings"]["region"] for g in groups] == ["visible", "disc"]
-  whole = jaxplore.sweep(grid, seeds=2, out=tmp_path / "whole", chunk_size=3, **SETTINGS)
+  whole = jaxplore.sweep(grid, seeds=3, out=tmp_path / "whole", chunk_size=3, **SETTINGS)
   pd.testing.assert_frame_equal(episodes, whole.episodes)
 
 
