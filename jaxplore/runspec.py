@@ -102,7 +102,8 @@ def _value(value, what: str, text_allowed: bool = False):
   if _is_number(value) or (isinstance(value, np.ndarray) and value.ndim == 0):
     return number(value.item() if isinstance(value, np.ndarray) else value, what)
   if hasattr(value, "__iter__"):
-    if text_allowed and all(isinstance(v, str) for v in value) and len(value):
+    value = list(value)
+    if text_allowed and value and all(isinstance(v, str) for v in value):
       return tuple(value)  # one word per robot (a sweep's rows of a word-valued setting)
     values = tuple(number(v.item() if isinstance(v, np.generic) else v, what) for v in value)
     if not values:

@@ -122,9 +122,9 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
   assert (out / "sweep.png").exists()
 
 
-def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkeypatch):
-  _, ref_out, _ = reference
-  out = tmp_path / "cut"
+def _interrupt_second_chunk(monkeypatch):
+  """Makes the sweep's second chunk raise KeyboardInterrupt (as Ctrl-C would); returns the real
+  ``run_chunk`` to put back."""
   real = execute.run_chunk
   calls = []
 
@@ -135,6 +135,13 @@ def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkey
     return real(*args, **kwargs)
 
   monkeypatch.setattr(execute, "run_chunk", interrupt_second_chunk)
+  return real
+
+
+def test_interrupted_sweep_resumes_to_the_same_table(reference, tmp_path, monkeypatch):
+  _, ref_out, _ = reference
+  out = tmp_path / "cut"
+  real = _interrupt_second_chunk(monkeypatch)
   with pytest.raises(KeyboardInterrupt, match="--resume"):
     jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
   monkeypatch.setattr(execute, "run_chunk", real)
@@ -451,16 +458,7 @@ def test_a_word_valued_setting_is_a_grid_axis(reference, tmp_path, monkeypatch):
   ``visible`` group is the reference's program, only ``disc`` compiles.)"""
   grid = {"region": ["visible", "disc"]}
   out = tmp_path / "cut"
-  real = execute.run_chunk
-  calls = []
-
-  def interrupt_second_chunk(*args, **kwargs):
-    calls.append(1)
-    if len(calls) == 2:
-      raise KeyboardInterrupt
-    return real(*args, **kwargs)
-
-  monkeypatch.setattr(execute, "run_chunk", interrupt_second_chunk)
+  real = _interrupt_second_chunk(monkeypatch)
   with pytest.raises(KeyboardInterrupt, match="--resume"):
     jaxplore.sweep(grid, seeds=3, out=out, chunk_size=3, **SETTINGS)
   monkeypatch.setattr(execute, "run_chunk", real)
