@@ -198,8 +198,9 @@ def sweep_figure(episodes: pd.DataFrame, names, path) -> Path:
   labels = [", ".join(f"{n}={show(v)}" for n, v in zip(names, key if isinstance(key, tuple) else (key,)))
             for key, _ in grouped]
   fig, axes = plt.subplots(2, 1, figsize=(max(6, 0.45 * len(labels) + 2), 7), sharex=True)
-  for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre E_r (nats/m)"),
-                            (axes[1], "coverage", "coverage of reachable free area")):
+  # Two-line labels: on one line they ran past the axes' height and were clipped.
+  for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre\nE_r (nats/m)"),
+                            (axes[1], "coverage", "coverage of\nreachable free area")):
     mean, std = grouped[column].mean(), grouped[column].std().fillna(0.0)
     ax.bar(range(len(labels)), mean.to_numpy(), yerr=std.to_numpy(), capsize=2, color="tab:blue", alpha=0.8)
     ax.set_ylabel(title)
