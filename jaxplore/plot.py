@@ -155,27 +155,56 @@ def run_figures(run_dir) -> list[Path]:
     ax.set_title("belief of robot 0 and trajectories")
   written.append(_save(fig, run_dir / "map.png"))
 
-  fig, ax = plt.subplots(figsize=(6, 4))
-  spread(ax, curves, "distance", "entropy")
-  ax.set_xlabel("distance travelled (m)")
-  ax.set_ylabel("map entropy (nats)")
-  ax.set_title("map entropy vs distance (mean, 10–90 % band)")
-  written.append(_save(fig, run_dir / "entropy_distance.png"))
-
-  fig, ax = plt.subplots(figsize=(6, 4))
-  spread(ax, curves, "time", "coverage")
-  ax.set_xlabel("mission time (s)")
-  ax.set_ylabel("coverage of reachable free area")
-  ax.set_ylim(0, 1.02)
-  ax.set_title("coverage vs time (mean, 10–90 % band)")
-  written.append(_save(fig, run_dir / "coverage_time.png"))
-
   sweep = (json.loads((run_dir / "config.json").read_text()).get("sweep")
            if (run_dir / "config.json").exists() else None)
-  if sweep and sweep.get("figure_names"):
-    episodes = pd.read_parquet(run_dir / "episodes.parquet")
+  episodes = (pd.read_parquet(run_dir / "episodes.parquet")
+              if sweep and sweep.get("figure_names") else None)
+  settings = _curves_by_setting(curves, episodes, sweep["figure_names"] if sweep else ())
+  band = "mean per setting" if len(settings) > 1 else "mean"
+  for x, y, name, xlabel, ylabel, title in (
+      ("distance", "entropy", "entropy_distance.png", "distance travelled (m)",
+       "map entropy (nats)", "map entropy vs distance"),
+      ("time", "coverage", "coverage_time.png", "mission time (s)",
+       "coverage of reachable free area", "coverage vs time")):
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, part in settings:
+      spread(ax, part, x, y, label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if y == "coverage":
+      ax.set_ylim(0, 1.02)
+    if len(settings) > 1:
+      ax.legend(fontsize=6)
+    ax.set_title(f"{title} ({band}, 10–90 % band)")
+    written.append(_save(fig, run_dir / name))
+
+  if episodes is not None:
     written.append(sweep_figure(episodes, sweep["figure_names"], run_dir / "sweep.png"))
   return written
+
+
+# A sweep's curve figures draw one curve per setting up to this many settings, else all pooled.
+MAX_CURVES = 8
+
+
+def _setting_label(names, key) -> str:
+  """``name=value, ...`` of one setting (``-`` for NaN: a name its planner does not have)."""
+  show = lambda v: v if isinstance(v, str) else ("-" if v != v else f"{v:g}")
+  values = key if isinstance(key, tuple) else (key,)
+  return ", ".join(f"{n}={show(v)}" for n, v in zip(names, values))
+
+
+def _curves_by_setting(curves: pd.DataFrame, episodes,
+                       names) -> list[tuple[str | None, pd.DataFrame]]:
+  """``[(label, curves of its robots)]`` per setting of a sweep (``names`` its figure names), or
+  ``[(None, curves)]`` for a run or a sweep of more than :data:`MAX_CURVES` settings."""
+  if episodes is None or not names:
+    return [(None, curves)]
+  grouped = episodes.groupby(list(names), sort=True, dropna=False)
+  if not 1 < grouped.ngroups <= MAX_CURVES:
+    return [(None, curves)]
+  return [(_setting_label(names, key), curves[curves.robot.isin(part.robot)])
+          for key, part in grouped]
 
 
 def _save(fig, path: Path) -> Path:
@@ -194,9 +223,7 @@ def sweep_figure(episodes: pd.DataFrame, names, path) -> Path:
   setting of its own, shown as ``-``.
   """
   grouped = episodes.groupby(list(names), sort=True, dropna=False)
-  show = lambda v: v if isinstance(v, str) else ("-" if v != v else f"{v:g}")  # NaN: not swept there
-  labels = [", ".join(f"{n}={show(v)}" for n, v in zip(names, key if isinstance(key, tuple) else (key,)))
-            for key, _ in grouped]
+  labels = [_setting_label(names, key) for key, _ in grouped]
   fig, axes = plt.subplots(2, 1, figsize=(max(6, 0.45 * len(labels) + 2), 7), sharex=True)
   # Two-line labels: on one line they ran past the axes' height and were clipped.
   for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre\nE_r (nats/m)"),
