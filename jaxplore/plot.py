@@ -157,9 +157,9 @@ def run_figures(run_dir) -> list[Path]:
 
   sweep = (json.loads((run_dir / "config.json").read_text()).get("sweep")
            if (run_dir / "config.json").exists() else None)
-  episodes = (pd.read_parquet(run_dir / "episodes.parquet")
-              if sweep and sweep.get("figure_names") else None)
-  settings = _curves_by_setting(curves, episodes, sweep["figure_names"] if sweep else ())
+  names = (sweep or {}).get("figure_names") or ()  # none in a run's (or an older sweep's) config
+  episodes = pd.read_parquet(run_dir / "episodes.parquet") if names else None
+  settings = _curves_by_setting(curves, episodes, names)
   band = "mean per setting" if len(settings) > 1 else "mean"
   for x, y, name, xlabel, ylabel, title in (
       ("distance", "entropy", "entropy_distance.png", "distance travelled (m)",
@@ -179,7 +179,7 @@ def run_figures(run_dir) -> list[Path]:
     written.append(_save(fig, run_dir / name))
 
   if episodes is not None:
-    written.append(sweep_figure(episodes, sweep["figure_names"], run_dir / "sweep.png"))
+    written.append(sweep_figure(episodes, names, run_dir / "sweep.png"))
   return written
 
 
