@@ -191,7 +191,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
 
     logodds, d_entropy, d_covered = mapping.integrate_observation(
         logodds, robot, sensor.observation_tiles(observed, shape), world.reachable, params,
-        after=jnp.sum(old_end))
+        after=jnp.sum(old_end), whole_grid=config.strategy == "lockstep")
     if entropy_map is not None:
       ru_cells = jnp.where(active, params.alpha * config.r_e / res, 0.0)
       entropy_map = mapping.update_entropy_map(

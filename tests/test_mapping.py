@@ -1,7 +1,9 @@
 """Belief, entropy and neighbourhood kernels against closed forms, SciPy and plain NumPy loops."""
 
+import functools
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -133,14 +135,17 @@ def _entropy64(logodds):
 
 
 @EAGER_AND_JIT
+@pytest.mark.parametrize("whole_grid", [False, True], ids=["tile_loop", "whole_grid"])
 @pytest.mark.parametrize("shape", [(37, 50), (32, 16), (5, 7)], ids=str)
-def test_integrate_observation_is_the_inverse_sensor_model_on_one_robot(transform, shape):
-  """The tile loop against the model written over the whole grid in NumPy: the other robots'
-  grids untouched, each seen cell + l_free / l_occ once, clamped; the entropy and coverage
-  changes of that robot's map."""
+def test_integrate_observation_is_the_inverse_sensor_model_on_one_robot(transform, shape,
+                                                                        whole_grid):
+  """The tile loop (per_robot) and the whole-grid update (lockstep) against the model written
+  over the whole grid in NumPy: the other robots' grids untouched, each seen cell + l_free /
+  l_occ once, clamped; the entropy and coverage changes of that robot's map."""
   params, logodds, grid, tiles, reachable = _observation_case(shape, seed=sum(shape))
   robot = 1
-  new, d_entropy, d_covered = transform(mapping.integrate_observation)(
+  integrate = functools.partial(mapping.integrate_observation, whole_grid=whole_grid)
+  new, d_entropy, d_covered = transform(integrate)(
       jnp.asarray(logodds), robot, jnp.asarray(tiles), jnp.asarray(reachable), params)
   new = np.asarray(new)
   old = logodds[robot]
@@ -154,3 +159,21 @@ def test_integrate_observation_is_the_inverse_sensor_model_on_one_robot(transfor
                             - int(np.sum(reachable & (old < threshold))))
   np.testing.assert_allclose(float(d_entropy), np.sum(_entropy64(expected) - _entropy64(old)),
                              rtol=1e-4, atol=1e-3)
+
+
+def test_the_whole_grid_update_batches_like_the_tile_loop():
+  """Under vmap, as the lockstep strategy runs it (one robot's [1, H, W] grid per batch row, a
+  row with nothing seen): the same beliefs and coverage as the tile loop's, bit for bit, and the
+  same entropy change up to summation order."""
+  params, logodds, _, tiles, reachable = _observation_case((37, 50), seed=7)
+  stack = jnp.asarray(logodds)[:, None]
+  many = jnp.stack([jnp.asarray(tiles), jnp.zeros_like(tiles), jnp.asarray(tiles)[:, ::-1]])
+  run = lambda whole_grid: jax.jit(jax.vmap(lambda l, o: mapping.integrate_observation(
+      l, 0, o, jnp.asarray(reachable), params, whole_grid=whole_grid)))(stack, many)
+  tile_loop, whole_grid = run(False), run(True)
+  np.testing.assert_array_equal(np.asarray(whole_grid[0]), np.asarray(tile_loop[0]))
+  np.testing.assert_array_equal(np.asarray(whole_grid[2]), np.asarray(tile_loop[2]))
+  np.testing.assert_allclose(np.asarray(whole_grid[1]), np.asarray(tile_loop[1]), rtol=1e-5,
+                             atol=1e-4)
+  assert not np.array_equal(np.asarray(tile_loop[0][0]), logodds[:1])  # the scan changed robot 0
+  assert np.asarray(tile_loop[1])[1] == 0.0 and np.asarray(tile_loop[2])[1] == 0  # nothing seen
