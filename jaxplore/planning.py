@@ -16,6 +16,7 @@ returns its ``State.memory``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import chex
 import jax
@@ -269,6 +270,34 @@ def lockstep_plan_chunk(config: SimConfig, batch: int) -> int:
   return min(batch, max(LOCKSTEP_PLAN_CHUNK, -(-batch // config.replan_every)))
 
 
+# Smaller chunks a lockstep round without a window takes instead of its own when one of them
+# holds every robot that needs a plan (:func:`_plan_robots_by_need`).
+LOCKSTEP_SMALL_CHUNKS = (4, 16)
+
+
+def _plan_robots_by_need(config: SimConfig, world: World, params: Params, state: State, need,
+                         chunk: int):
+  """:func:`_plan_robots` on the whole grid in the smallest of :data:`LOCKSTEP_SMALL_CHUNKS`
+  that holds every robot with ``need`` set, else in chunks of ``chunk`` as before.
+
+  A planner that replans only when its path is done (li2020) has a robot or two of a batch
+  planning at a typical step, and a chunk pays for all its rows, copies included. The planner is
+  compiled once per size (``lax.switch``); each call is never larger, nor are there more of them.
+  On one H100 (``lab``, li2020, 64 and 256 robots) 1.5-1.6x the robot-steps/s of fixed chunks,
+  at twice the compile time (``experiments/results/bench_lockstep_variants_gpu.md``). A chunk's
+  size never changes a plan, so the results are the same bit for bit.
+  """
+  chunk = min(chunk, need.shape[0])
+  sizes = sorted({size for size in LOCKSTEP_SMALL_CHUNKS if size < chunk} | {chunk})
+  rounds = [functools.partial(_plan_robots, config, world, params, need=need, window=0,
+                              chunk=size) for size in sizes]
+  if len(rounds) == 1:
+    return rounds[0](state)
+  n_need = jnp.sum(need.astype(jnp.int32))
+  branch = sum((n_need > size).astype(jnp.int32) for size in sizes[:-1])
+  return jax.lax.switch(branch, rounds, state)
+
+
 def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params, state: State
                                 ) -> State:
   """:func:`plan_where_needed` for an accelerator: the robots that need a plan are gathered in
@@ -279,13 +308,14 @@ def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params,
   kernels (li2020's visible gains) pays per chunk, not per robot. The whole-grid round after it,
   for the few plans the window could not certify, takes chunks of :data:`LOCKSTEP_PLAN_CHUNK`:
   a whole-grid solve costs per robot. A planner without a window plans on the whole grid in the
-  window round's chunks. The results are :func:`plan_where_needed`'s."""
+  window round's chunks, or in a smaller chunk when one holds every robot that needs a plan
+  (:func:`_plan_robots_by_need`). The results are :func:`plan_where_needed`'s."""
   need = needs_plan(config, state)
   batch = need.shape[0]
   per_step = lockstep_plan_chunk(config, batch)
   with batching(None, "relaxation"):
     if not uses_window(config):
-      return _plan_robots(config, world, params, state, need, 0, per_step)[0]
+      return _plan_robots_by_need(config, world, params, state, need, per_step)[0]
     state, certified = _plan_robots(config, world, params, state, need, config.plan_window,
                                     per_step)
     return _plan_robots(config, world, params, state, need & ~certified, 0,

@@ -3,6 +3,7 @@ it, against SciPy's distance transform and a plain breadth-first search."""
 
 from collections import deque
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -118,3 +119,35 @@ def test_nearest_frontier_does_not_follow_a_notch_deeper_into_the_inflated_zone(
   assert len(path) > 1
   assert np.all(distance[path[:, 0], path[:, 1]] >= distance[11, 13] - 1e-9)
   assert np.asarray(plan.goal)[0] >= 25  # the far corner's frontier
+
+
+def test_lockstep_plans_in_a_smaller_chunk_when_it_holds_every_robot_that_needs_one(monkeypatch):
+  """A planner without a window, under the lockstep strategy, 6 robots: one robot needing a plan
+  falls in the chunk of 4, five in the chunk of 6. Either way the states are those of fixed
+  chunks of 6 (LOCKSTEP_SMALL_CHUNKS empty), bit for bit, and only the robots that needed a
+  plan planned."""
+  from jaxplore import planning
+  robots = 6
+  grid = box_world(30, 44, res=0.1, walls=((14, 16, 8, 30),))
+  params = make_params(res=0.1, r_robot=0.15, r_max=1.0)
+  config = config_for(grid.shape, grid.res, params, max_steps=8, planner="nearest_frontier",
+                      plan_window=0, strategy="lockstep")
+  assert not sim.uses_window(config)
+  world = sim.make_world(grid, 0.15)
+  params = sim.broadcast_params(params, robots)
+  starts = jnp.asarray([[0.5 + 0.5 * i, 0.6 + 0.3 * (i % 2), 0.0] for i in range(robots)])
+  state = sim.reset_batch(config, world, params, jax.random.split(jax.random.PRNGKey(0), robots),
+                          starts)
+  # Compiled here: the chunk sizes are read when the program is traced.
+  plan = lambda: jax.jit(lambda s: planning._plan_where_needed_lockstep(
+      config, world, params, s)).lower(state).compile()
+  by_need = plan()
+  monkeypatch.setattr(planning, "LOCKSTEP_SMALL_CHUNKS", ())
+  fixed = plan()
+  for needing in (1, 5):
+    needs = np.arange(robots) >= robots - needing
+    before = state.replace(busy=jnp.asarray(~needs), since_plan=jnp.zeros(robots, jnp.int32))
+    after = by_need(before)
+    chex.assert_trees_all_equal(after, fixed(before))
+    planned = np.any(np.asarray(after.goal) != np.asarray(before.goal), axis=-1)
+    np.testing.assert_array_equal(planned, needs)
