@@ -1,32 +1,34 @@
 """Benchmark: candidate changes to the lockstep strategy, A/B against the engine as it is.
 
-At 4,096 robots on ``office`` a lockstep step on one H200 took ~41 ms, 31 of them the motion
-step, led by the belief update (a loop over the observed tiles, ~8 ms) and the marking of the
-cells a scan saw (~8 ms) (README, "What is still slow on a GPU"). Each candidate below replaces
-one engine function, in a child process of its own, for a run forced to the ``lockstep``
-strategy (or adds XLA flags to it); nothing in the package changes until a candidate has won
-on a GPU:
+Each candidate replaces one engine function, in a child process of its own, for a run forced to
+the ``lockstep`` strategy (or adds XLA flags to it); nothing in the package changes until a
+candidate has won on a GPU. Two candidates won on one H100 and are now the engine
+(``experiments/results/bench_lockstep_variants_gpu.md``); their variants here undo them, so a
+later GPU can check the win:
 
-- ``whole_grid``: ``mapping.integrate_observation`` updates each robot's whole grid in one set
-  of kernels instead of a loop over the observed tiles (on a GPU a loop step is a chain of small
-  kernels, batched over robots by gathers and scatters). The log-odds and the coverage are the
-  same bit for bit; the map-entropy change is summed over the whole grid instead of tile by
-  tile, so the ``entropy`` metric differs in its last bits (compared to 1e-5 relative).
+- ``tile_loop``: ``mapping.integrate_observation`` as a loop over the observed tiles (the
+  ``per_robot`` update) instead of the whole grid at once. On a GPU a loop step is a chain of
+  small kernels, batched over robots by gathers and scatters: the whole-grid update ran
+  1.4-2.2x the robot-steps/s on ``office`` (1,024-16,384 robots). The log-odds and coverage are
+  the same bit for bit; the map-entropy change is summed in another order, so the ``entropy``
+  metric differs in its last bits (compared to 1e-5 relative).
+- ``fixed_chunks``: a planning round without a window always in chunks of
+  ``planning.lockstep_plan_chunk`` (at least 64), never the smaller chunk of 4 or 16 that holds
+  every robot needing a plan (``planning.LOCKSTEP_SMALL_CHUNKS``). li2020 plans only when its
+  path is done (1 robot of 64 at a typical step on ``lab``): chunks by need ran 1.5-1.6x the
+  robot-steps/s on ``lab``, at twice the compile time. Bit for bit.
+
+Candidates still open or dropped:
+
 - ``obs32``: the observation buffer (``sensor.empty_observation``) in int32 instead of int8 (a
-  GPU scatters single bytes by a compare-and-swap loop, whole words natively). Bit for bit.
-- ``both``: the two together.
-- ``graphs``: no code change; XLA:GPU records loops and conditionals into CUDA graphs
-  (``--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL``), so a loop's predicate is read on
-  the device instead of copied to the host every iteration: the hypothesis for li2020's visible
-  gains, whose ~1,300 loop steps per call cost ~110 ms at 4 robots, far above their work.
+  GPU scatters single bytes by a compare-and-swap loop, whole words natively). Bit for bit;
+  0.78-0.86x on an H100, and it took the whole-grid gain away.
 - ``chunk16``, ``chunk4``: the lockstep planning chunk at least 16 or 4 robots instead of
-  ``planning.LOCKSTEP_PLAN_CHUNK`` = 64. li2020 plans only when its path is done (1 robot of 64
-  at a typical step on ``lab``) and pays for the whole chunk of 64 (copies of that robot);
-  a smaller chunk costs less per call but needs more calls when many robots plan. Bit for bit
-  (a chunk's size never changes a plan).
-- ``by_need``: each planning round picks its chunk by how many robots need a plan: one chunk
-  of 4 or 16 when that holds them all, else the engine's chunks (``lax.switch``; the planner is
-  compiled once per size). Never more calls than the engine's, each no larger.
+  ``planning.LOCKSTEP_PLAN_CHUNK`` = 64 (windowed rounds included). Bit for bit (a chunk's size
+  never changes a plan). ``chunk4`` on ``lab``: 0.99x (64 robots), 1.13x (256).
+- CUDA graphs for loops (``--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL``) gave wrong
+  results on an H100 with JAX 0.11.2 (every leaf of the final state differed; at 1,024 robots
+  the loops did not run): not a variant any more, and not a flag to set for jaxplore.
 
 Every (batch, variant) runs in its own process, alternated as head, the variants, head again,
 so a drift of the machine shows; each times ``bench_accelerator.time_setting`` (the same steps
@@ -53,13 +55,11 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 VARIANTS = {  # name: (engine functions replaced, XLA flags added)
     "head": ((), ""),
-    "whole_grid": (("whole_grid",), ""),
+    "tile_loop": (("tile_loop",), ""),
+    "fixed_chunks": (("fixed_chunks",), ""),
     "obs32": (("obs32",), ""),
-    "both": (("whole_grid", "obs32"), ""),
-    "graphs": ((), "--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"),
     "chunk16": (("chunk16",), ""),
     "chunk4": (("chunk4",), ""),
-    "by_need": (("by_need",), ""),
 }
 # Leaves that may differ by float summation order, with the relative tolerance they are held to.
 TOLERANT = {".entropy": 1e-5}
@@ -71,7 +71,7 @@ def _parse_args(argv=None):
   add = parser.add_argument
   add("--setting", default="office", help="a setting of bench_accelerator.py")
   add("--robots", default="1024,4096", help="comma separated batch sizes")
-  add("--variants", default="whole_grid,obs32,both,graphs",
+  add("--variants", default="tile_loop,obs32",
       help=f"comma separated, of {', '.join(list(VARIANTS)[1:])}")
   add("--steps", type=int, default=96)
   add("--chunk-steps", type=int, default=32)
@@ -84,59 +84,24 @@ def _parse_args(argv=None):
   return parser.parse_args(argv)
 
 
-def integrate_observation_whole_grid(logodds, robot, observed, reachable, params, after=0.0):
-  """``mapping.integrate_observation`` on the robot's whole grid at once (no tile loop)."""
-  import jax
-  import jax.numpy as jnp
-
-  from jaxplore import mapping, sensor
-
-  grid = sensor.grid_of_tiles(observed, logodds.shape[1:])
-  old = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
-  new = mapping.update_logodds(old, grid, params)
-  d_entropy = jnp.sum(mapping.entropy_of_logodds(new) - mapping.entropy_of_logodds(old))
-  threshold = mapping.logit(params.p_free)
-  d_covered = (jnp.sum(reachable & (new < threshold)).astype(jnp.int32)
-               - jnp.sum(reachable & (old < threshold)).astype(jnp.int32))
-  new = mapping._after(new, after, d_entropy, d_covered)
-  return jax.lax.dynamic_update_index_in_dim(logodds, new, robot, 0), d_entropy, d_covered
-
-
 def _patch(variant: str) -> None:
   import jax.numpy as jnp
 
   from jaxplore import mapping, planning, sensor
 
   patches = VARIANTS[variant][0]
-  if "whole_grid" in patches:
-    mapping.integrate_observation = integrate_observation_whole_grid
+  if "tile_loop" in patches:
+    integrate = mapping.integrate_observation
+    mapping.integrate_observation = (
+        lambda *args, whole_grid=False, **kwargs: integrate(*args, whole_grid=False, **kwargs))
+  if "fixed_chunks" in patches:
+    planning.LOCKSTEP_SMALL_CHUNKS = ()
   if "obs32" in patches:
     empty = sensor.empty_observation
     sensor.empty_observation = lambda shape: empty(shape).astype(jnp.int32)
   for chunk in (16, 4):
     if f"chunk{chunk}" in patches:
       planning.LOCKSTEP_PLAN_CHUNK = chunk
-  if "by_need" in patches:
-    planning._plan_robots = _plan_robots_by_need(planning._plan_robots)
-
-
-def _plan_robots_by_need(plan_robots, smaller=(4, 16)):
-  """``planning._plan_robots`` planning in the smallest of ``smaller`` + (chunk,) chunks that
-  holds every robot that needs a plan in one, else in ``chunk``-sized chunks as before."""
-  import jax
-  import jax.numpy as jnp
-
-  def by_need(config, world, params, state, need, window, chunk):
-    sizes = sorted({size for size in smaller if size < min(chunk, need.shape[0])} | {chunk})
-    if len(sizes) == 1:
-      return plan_robots(config, world, params, state, need, window, chunk)
-    n_need = jnp.sum(need.astype(jnp.int32))
-    branch = sum((n_need > size).astype(jnp.int32) for size in sizes[:-1])
-    rounds = [lambda s, size=size: plan_robots(config, world, params, s, need, window, size)
-              for size in sizes]
-    return jax.lax.switch(branch, rounds, state)
-
-  return by_need
 
 
 def child(args) -> None:

@@ -2,18 +2,21 @@
 # The open GPU measurements, in the order they matter, each writing its results file as its rows
 # finish (a run cut short keeps what it measured). On one H100/H200 through the device tool:
 #
-#   bash experiments/gpu_benchmarks.sh variants OUT   # ~5 min: office 1,024 / 4,096 robots, the
-#                                                     # lockstep candidates against head
-#   bash experiments/gpu_benchmarks.sh lab OUT        # ~6 min: lab li2020 64 / 256, CUDA graphs
-#                                                     # and smaller planning chunks
-#   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
 #   bash experiments/gpu_benchmarks.sh table OUT EB   # ~7 min: the README table (EB: a folder
-#                                                     # holding room.yaml and room.pgm)
+#                                                     # holding room.yaml and room.pgm); the
+#                                                     # table predates the whole-grid belief
+#                                                     # update and li2020's chunks by need
+#   bash experiments/gpu_benchmarks.sh variants OUT   # ~4 min: office 1,024 / 4,096 robots, the
+#                                                     # landed whole-grid update undone, int32
+#                                                     # observations, against head
+#   bash experiments/gpu_benchmarks.sh lab OUT        # ~6 min: lab li2020 64 / 256, the landed
+#                                                     # changes undone, chunks of 4
+#   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
 #
 # OUT defaults to experiments/results. Each part is one command line below; run them by hand
 # with other batch sizes as the budget allows.
 set -euo pipefail
-part=${1:?"which part: variants, lab, stages or table"}
+part=${1:?"which part: table, variants, lab or stages"}
 out=${2:-experiments/results}
 mkdir -p "$out"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
@@ -23,7 +26,7 @@ case "$part" in
       --out "$out/bench_lockstep_variants_gpu.md" ;;
   lab)
     python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
-      --chunk-steps 16 --variants graphs,chunk4,by_need --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
+      --chunk-steps 16 --variants fixed_chunks,tile_loop,chunk4 --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
   stages)
     python experiments/stage_times.py --settings office,lab --strategies lockstep \
       --robots 4,64,1024 --out "$out/stage_times_gpu.md" ;;

@@ -1,5 +1,6 @@
-"""The GPU candidates of ``experiments/bench_lockstep_variants.py`` compute what the engine does
-(a candidate that won on a GPU moves into the package with these checks)."""
+"""``experiments/bench_lockstep_variants.py``: its variants patch what they say, and its
+comparison of final states tells bit for bit from a changed leaf. (A candidate that wins on a
+GPU moves into the package with its checks against the engine: see tests/test_mapping.py.)"""
 
 import sys
 from pathlib import Path
@@ -7,9 +8,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
-from conftest import EAGER_AND_JIT
 from jaxplore import mapping
 from test_mapping import _observation_case
 
@@ -17,30 +16,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import bench_lockstep_variants as variants  # noqa: E402
 
 
-@EAGER_AND_JIT
-@pytest.mark.parametrize("shape", [(37, 50), (48, 64), (5, 7)], ids=str)
-def test_whole_grid_belief_update_equals_the_tile_loop(transform, shape):
-  params, logodds, _, tiles, reachable = _observation_case(shape, seed=1 + sum(shape))
-  args = (jnp.asarray(logodds), 2, jnp.asarray(tiles), jnp.asarray(reachable), params)
-  tiles_new, tiles_entropy, tiles_covered = transform(mapping.integrate_observation)(*args)
-  grid_new, grid_entropy, grid_covered = transform(variants.integrate_observation_whole_grid)(*args)
-  np.testing.assert_array_equal(np.asarray(grid_new), np.asarray(tiles_new))
-  assert int(grid_covered) == int(tiles_covered)
-  np.testing.assert_allclose(float(grid_entropy), float(tiles_entropy), rtol=1e-5, atol=1e-4)
-
-
-def test_whole_grid_belief_update_batches_like_the_engine():
-  """Under vmap (the lockstep strategy: one robot's grid per batch row)."""
+def test_the_variants_undo_what_landed(monkeypatch):
+  """``tile_loop`` brings the belief update's loop over tiles back under the lockstep strategy,
+  ``fixed_chunks`` the planning chunks that ignore how many robots need a plan."""
+  from jaxplore import planning
+  monkeypatch.setattr(mapping, "integrate_observation", mapping.integrate_observation)
+  monkeypatch.setattr(planning, "LOCKSTEP_SMALL_CHUNKS", planning.LOCKSTEP_SMALL_CHUNKS)
   params, logodds, _, tiles, reachable = _observation_case((37, 50), seed=7)
-  stack = jnp.asarray(logodds)[:, None]  # three robots, each its own [1, H, W] grid
-  many = jnp.stack([jnp.asarray(tiles), jnp.zeros_like(tiles), jnp.asarray(tiles)[:, ::-1]])
-  run = lambda fn: jax.jit(jax.vmap(lambda l, o: fn(l, 0, o, jnp.asarray(reachable), params)))(
-      stack, many)
-  expected, got = run(mapping.integrate_observation), run(variants.integrate_observation_whole_grid)
-  np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(expected[0]))
-  np.testing.assert_array_equal(np.asarray(got[2]), np.asarray(expected[2]))
-  np.testing.assert_allclose(np.asarray(got[1]), np.asarray(expected[1]), rtol=1e-5, atol=1e-4)
-  assert not np.array_equal(np.asarray(expected[0][0]), logodds[:1])  # the scan changed robot 0
+  args = (jnp.asarray(logodds), 2, jnp.asarray(tiles), jnp.asarray(reachable), params)
+  loops = lambda: str(jax.make_jaxpr(
+      lambda *a: mapping.integrate_observation(*a, whole_grid=True))(*args)).count("while[")
+  assert loops() == 0
+  variants._patch("tile_loop")
+  assert loops() == 1
+  assert planning.LOCKSTEP_SMALL_CHUNKS
+  variants._patch("fixed_chunks")
+  assert planning.LOCKSTEP_SMALL_CHUNKS == ()
 
 
 def test_compare_tells_bit_for_bit_from_a_changed_leaf(tmp_path):
