@@ -233,7 +233,8 @@ def _add_spec_flags(p):
   p.add_argument("--strategy", default=None, choices=("auto", "per_robot", "lockstep"),
                  help="how the batch is executed: per_robot (robots one or a few at a time through "
                  "the irregular stages) or lockstep (one kernel per stage for the whole batch); "
-                 "the results are the same (default auto: per_robot on CPU, lockstep on GPU/TPU)")
+                 "the results are the same, the map-entropy metric to its last bits (default auto: "
+                 "per_robot on CPU, lockstep on GPU/TPU)")
   p.add_argument("--set", action="append", metavar="NAME=VALUE",
                  help="a simulator parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 "
                  "--k1 0.2)")
