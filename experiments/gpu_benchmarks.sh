@@ -7,8 +7,8 @@
 #                                                     # table predates the whole-grid belief
 #                                                     # update and li2020's chunks by need
 #   bash experiments/gpu_benchmarks.sh variants OUT   # ~4 min: office 1,024 / 4,096 robots, the
-#                                                     # landed whole-grid update undone, int32
-#                                                     # observations, against head
+#                                                     # landed whole-grid update undone, and
+#                                                     # leftovers_by_need, against head
 #   bash experiments/gpu_benchmarks.sh lab OUT        # ~6 min: lab li2020 64 / 256, the landed
 #                                                     # changes undone, chunks of 4
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
