@@ -198,13 +198,14 @@ def update_entropy_map(entropy_map, logodds, robot_rc, radius_cells, k, window: 
 
 def integrate_observation(logodds, robot, observed, reachable, params, after=0.0,
                           whole_grid: bool = False):
-  """Adds one scan to one robot's belief (Li's inverse sensor model), touching only observed tiles.
+  """Adds one scan to one robot's belief (Li's inverse sensor model).
 
   Every cell seen free adds ``l_free`` once, every cell seen occupied ``l_occ`` once (clamped to
-  ``[l_min, l_max]``). Only the tiles of ``observed`` that hold an observation are read, updated
-  and written back, one at a time (in place inside :func:`per_robot`): a scan sees a few thousand
-  cells, and the cell entropy (Li Eq 2) of a whole grid before and after the update, which a
-  full-grid update needs for the entropy change, costs far more than the update itself.
+  ``[l_min, l_max]``). By default only the tiles of ``observed`` that hold an observation are
+  read, updated and written back, one at a time (in place inside :func:`per_robot`): a scan sees
+  a few thousand cells, and the cell entropy (Li Eq 2) of a whole grid before and after the
+  update, which a full-grid update needs for the entropy change, costs far more on a CPU than
+  the update itself.
 
   With ``whole_grid`` (the ``lockstep`` strategy) the robot's whole grid is updated at once
   instead: batched by ``vmap`` on a GPU, the tile loop is a chain of small gathers and scatters
@@ -267,7 +268,8 @@ def _integrate_whole_grid(logodds, robot, observed, reachable, params, after):
   """:func:`integrate_observation` on robot ``robot``'s whole grid at once (no tile loop)."""
   old = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
   n_rows, n_cols, th, tw = observed.shape
-  grid = observed.transpose(0, 2, 1, 3).reshape(n_rows * th, n_cols * tw)[: old.shape[0], : old.shape[1]]
+  grid = observed.transpose(0, 2, 1, 3).reshape(n_rows * th, n_cols * tw)
+  grid = grid[: old.shape[0], : old.shape[1]]
   new = update_logodds(old, grid, params)
   d_entropy = jnp.sum(entropy_of_logodds(new) - entropy_of_logodds(old))
   free_threshold = logit(params.p_free)
