@@ -121,6 +121,27 @@ def test_nearest_frontier_does_not_follow_a_notch_deeper_into_the_inflated_zone(
   assert np.asarray(plan.goal)[0] >= 25  # the far corner's frontier
 
 
+@pytest.mark.parametrize(("batch", "chunk", "needing", "size"), [
+    (6, 6, 0, 4), (6, 6, 1, 4), (6, 6, 4, 4), (6, 6, 5, 6), (3, 64, 3, 3), (64, 64, 16, 16),
+    (64, 64, 17, 64), (300, 75, 16, 16), (300, 75, 40, 75)])
+def test_lockstep_chunks_by_need_are_the_smallest_that_holds_every_robot_that_needs_a_plan(
+    monkeypatch, batch, chunk, needing, size):
+  """Which chunk size ``_plan_robots_by_need`` plans in (``_plan_robots`` replaced by a stand-in
+  that returns the size it was given), traced with the count of robots needing a plan."""
+  from jaxplore import planning
+
+  def stand_in(config, world, params, state, need, window, chunk):
+    assert window == 0
+    return state + chunk, need
+
+  monkeypatch.setattr(planning, "_plan_robots", stand_in)
+  need = jnp.arange(batch) < needing
+  planned = jax.jit(lambda need: planning._plan_robots_by_need(
+      None, None, None, jnp.int32(0), need, chunk)[0])(need)
+  assert int(planned) == size
+
+
+@pytest.mark.slow  # three planning programs: ~20 s to compile on 2 cores
 def test_lockstep_plans_in_a_smaller_chunk_when_it_holds_every_robot_that_needs_one(monkeypatch):
   """A planner without a window, under the lockstep strategy, 6 robots: one robot needing a plan
   falls in the chunk of 4, five in the chunk of 6. Either way the states are those of fixed
