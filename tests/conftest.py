@@ -8,6 +8,7 @@ import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+
 SHARED_MAPS = Path(__file__).resolve().parents[1].parent / "shared" / "maps"
 
 # Run kernels eagerly and compiled on the same inputs (STYLE.md practice 11).
@@ -22,3 +23,18 @@ def box_world(h=40, w=60, res=0.1, walls=()):
   for r0, r1, c0, c1 in walls:
     occ[r0:r1, c0:c1] = True
   return GridMap(occ, res, (0.0, 0.0), "box")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def shared_compilation_cache(tmp_path_factory):
+  """The suite is compile-bound and several modules compile the same programs (the same small
+  worlds and settings behind jit wrappers of their own, on either xdist worker): a compilation
+  cache shared by the run's workers loads those instead of compiling them again (with
+  loadscope: 506 -> 467-476 s for the suite on 2 cores). It lives in the run's temporary folder (an xdist worker's is
+  a subfolder of it), which pytest prunes with its old runs."""
+  base = tmp_path_factory.getbasetemp()
+  folder = (base.parent if base.name.startswith("popen-gw") else base) / "jax_compilation_cache"
+  jax.config.update("jax_compilation_cache_dir", str(folder))
+  jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+  yield
+  jax.config.update("jax_compilation_cache_dir", None)
