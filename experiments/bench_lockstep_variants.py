@@ -30,6 +30,12 @@ Candidates still open or dropped:
   could not certify: nearest frontier on ``office``) in a chunk of 4 or 16 when that holds
   them all, as the planners without a window now do, instead of chunks of 64. Bit for bit; not
   yet timed on a GPU.
+- ``visible_by_depth``: li2020's visible gains with the tree of sight lines walked a whole
+  depth at a time (``experiments/visible_by_depth.py``): 185 loop steps for ``lab``'s R_e of
+  57 cells instead of ~1,950, each a few gathers over [64, H, W]. The gains are the package's
+  up to float summation order (relative 2e-6 on random grids), so a plan whose best candidates
+  tie to the last bits may differ and the final state with it. On a CPU its gathers make it
+  ~15x slower (4.4 s against 0.30 s for 4 robots); not yet timed on a GPU.
 - CUDA graphs for loops (``--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL``) gave wrong
   results on an H100 with JAX 0.11.2 (every leaf of the final state differed; at 1,024 robots
   the loops did not run): not a variant any more, and not a flag to set for jaxplore.
@@ -66,6 +72,7 @@ VARIANTS = {  # name: (engine functions replaced, XLA flags added)
     "obs32": (("obs32",), ""),
     "chunk16": (("chunk16",), ""),
     "chunk4": (("chunk4",), ""),
+    "visible_by_depth": (("visible_by_depth",), ""),
 }
 # Leaves that may differ by float summation order, with the relative tolerance they are held to.
 TOLERANT = {".entropy": 1e-5}
@@ -111,6 +118,11 @@ def _patch(variant: str) -> None:
   for chunk in (16, 4):
     if f"chunk{chunk}" in patches:
       planning.LOCKSTEP_PLAN_CHUNK = chunk
+  if "visible_by_depth" in patches:
+    from jaxplore.planners import li2020
+    from visible_by_depth import visible_gains_by_depth
+    li2020.visible_gains = (
+        lambda gains, occupied, radius, block=1: visible_gains_by_depth(gains, occupied, radius))
 
 
 def _plan_where_needed_leftovers_by_need(engine, config, world, params, state):

@@ -6,6 +6,12 @@
 #                                                     # holding room.yaml and room.pgm); the
 #                                                     # table predates the whole-grid belief
 #                                                     # update and li2020's chunks by need
+#   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~8 min (never run yet): li2020 is short
+#                                                     # of its target; where its plan's time
+#                                                     # goes, part by part, and the candidate
+#                                                     # visible gains a depth at a time (185
+#                                                     # loop steps, not ~1,950) alone and in
+#                                                     # whole runs on lab
 #   bash experiments/gpu_benchmarks.sh variants OUT   # ~4 min: office 1,024 / 4,096 robots, the
 #                                                     # landed whole-grid update undone, and
 #                                                     # leftovers_by_need, against head
@@ -13,10 +19,10 @@
 #                                                     # changes undone, chunks of 4
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
 #
-# OUT defaults to experiments/results. Each part is one command line below; run them by hand
+# OUT defaults to experiments/results. Each part is a few command lines below; run them by hand
 # with other batch sizes as the budget allows.
 set -euo pipefail
-part=${1:?"which part: table, variants, lab or stages"}
+part=${1:?"which part: table, variants, li2020, lab or stages"}
 out=${2:-experiments/results}
 mkdir -p "$out"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
@@ -24,6 +30,13 @@ case "$part" in
   variants)
     python experiments/bench_lockstep_variants.py --setting office --robots 1024,4096 \
       --out "$out/bench_lockstep_variants_gpu.md" ;;
+  li2020)
+    python experiments/bench_li2020_parts.py --chunks 1,4,16,64 \
+      --out "$out/bench_li2020_parts_gpu.md"
+    python experiments/bench_visible_blocks.py --blocks 8 --by-depth 32 64 128 --robots 4 64 \
+      --out "$out/bench_visible_blocks_gpu.md"
+    python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
+      --chunk-steps 16 --variants visible_by_depth --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
   lab)
     python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
       --chunk-steps 16 --variants fixed_chunks,tile_loop,chunk4 --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
@@ -40,5 +53,5 @@ case "$part" in
     python experiments/bench_accelerator.py --settings lab --strategies lockstep \
       --robots 64,256,1024 --steps 32 --chunk-steps 16 --budget-s 40 --out "$out/bench_lab_gpu.md" ;;
   *)
-    echo "unknown part $part: variants, lab, stages or table" >&2; exit 2 ;;
+    echo "unknown part $part: table, variants, li2020, lab or stages" >&2; exit 2 ;;
 esac

@@ -8,6 +8,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
+from conftest import EAGER_AND_JIT
 
 from jaxplore import mapping
 from test_mapping import _observation_case
@@ -46,3 +48,35 @@ def test_compare_tells_bit_for_bit_from_a_changed_leaf(tmp_path):
   assert verdict("rounding").startswith(".entropy within")
   assert "beyond" in verdict("entropy")
   assert ".logodds DIFFERS" in verdict("logodds")
+
+
+@pytest.mark.parametrize("radius, block", [(3.0, 4), (5.5, 64)])
+@EAGER_AND_JIT
+def test_visible_gains_by_depth_are_the_packages_to_float_summation_order(radius, block,
+                                                                          transform):
+  """The GPU candidate sums what ``li2020.visible_gains`` sums (itself checked against a NumPy
+  ray caster in tests/planners/test_li2020.py), a depth's rows as a batch: the same up to
+  float rounding, on walls that cut sight lines and squeeze diagonals."""
+  from jaxplore.planners import li2020
+  from visible_by_depth import visible_gains_by_depth
+  rng = np.random.default_rng(3)
+  occupied = jnp.asarray(rng.random((14, 19)) < 0.25)
+  gains = jnp.asarray(rng.random((2, 14, 19)), jnp.float32)
+  expected = li2020.visible_gains(gains, occupied, radius, 2)
+  got = transform(lambda g, o: visible_gains_by_depth(g, o, radius, block))(gains, occupied)
+  for want, have in zip(expected, got):
+    np.testing.assert_allclose(np.asarray(have), np.asarray(want), rtol=1e-5, atol=1e-5)
+  # Not a copy of the disc's plain sums: some sight lines are blocked on this map.
+  blind = li2020.visible_gains(gains, jnp.zeros_like(occupied), radius, 2)[0]
+  assert not np.allclose(np.asarray(blind), np.asarray(got[0]))
+
+
+def test_the_visible_by_depth_variant_replaces_lockstep_visible_gains(monkeypatch):
+  from jaxplore.planners import li2020
+  from visible_by_depth import visible_gains_by_depth
+  monkeypatch.setattr(li2020, "visible_gains", li2020.visible_gains)
+  variants._patch("visible_by_depth")
+  gains, occupied = jnp.ones((1, 9, 9)), jnp.zeros((9, 9), bool).at[4, 6].set(True)
+  patched = li2020.visible_gains(gains, occupied, 3.0, 8)
+  candidate = visible_gains_by_depth(gains, occupied, 3.0)
+  assert all(np.array_equal(a, b) for a, b in zip(patched, candidate))
