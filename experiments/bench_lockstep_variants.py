@@ -35,7 +35,9 @@ Candidates still open or dropped:
   57 cells instead of ~1,950, each a few gathers over [64, H, W]. The gains are the package's
   up to float summation order (relative 2e-6 on random grids), so a plan whose best candidates
   tie to the last bits may differ and the final state with it. On a CPU its gathers make it
-  ~15x slower (4.4 s against 0.30 s for 4 robots); not yet timed on a GPU.
+  ~15x slower (4.4 s against 0.30 s for 4 robots); not yet timed on a GPU. A depth at once
+  with the groups apart was slower on an H200 at 256 robots (its windows materialised); the
+  chunks of 4 and 16 that most li2020 rounds now take are where this one may win.
 - CUDA graphs for loops (``--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL``) gave wrong
   results on an H100 with JAX 0.11.2 (every leaf of the final state differed; at 1,024 robots
   the loops did not run): not a variant any more, and not a flag to set for jaxplore.

@@ -2,16 +2,25 @@
 
 ``jaxplore.planners.li2020.visible_gains`` walks the tree of sight lines (``li2020.ray_tree``)
 group of subtrees by group, depth by depth, ``block`` offsets per loop step: for R_e = 57 cells
-(``lab``) some 1,300 loop steps of small kernels. On a GPU that chain is the plan's latency: on
-one H200 the visible gains of 4 robots took 113 ms a call, of 256 robots 653 ms
-(``experiments/results/bench_accelerator_gpu.md``), most of a li2020 step on ``lab``.
+(``lab``) ~1,950 loop steps of small kernels (1,697 blocks of 8 in 261 steps of the outer
+loop). On a GPU that chain is the plan's latency: on one H200 the visible gains of 4 robots
+took 113 ms a call, of 256 robots 653 ms (``experiments/results/bench_accelerator_gpu.md``),
+most of a li2020 step on ``lab``.
 
 Here every offset of one depth of the tree, all subtrees together, is a row of one batch, taken
-``block`` rows (64 by default) per loop step: ~215 loop steps for R_e = 57, each a few
-gathers and reductions over [block, H, W]. An offset's mask is its parent's (a row of the
-previous depth's buffer) cut where the chain steps diagonally between two occupied cells, as in
-the package. The masks of two depths live in one buffer [2, rows, H, W] (indexed by depth
-parity, written in place).
+``block`` rows (64 by default) per loop step: 185 loop steps for R_e = 57, each a few gathers
+and reductions over [block, H, W]. An offset's mask is its parent's (a row of the previous
+depth's buffer) cut where the chain steps diagonally between two occupied cells, as in the
+package. The masks of two depths live in one buffer [2, rows, H, W] (indexed by depth parity,
+written in place).
+
+An earlier session tried a depth at once with the groups kept apart (~900 loop steps), and on
+one H200 it was slower: 16 ms per plan, the README says, against the blocks' 2.6 ms at 256
+robots and 28 ms at 4 (the batch of the 16 ms was not recorded), every offset's window
+materialised in memory, as here. Since then a lockstep round plans in a chunk of 4 or 16 when
+that holds every robot that needs a plan, where the blocks' loop steps cost the latency; that
+is the case this candidate is for: if it wins there and loses at 64 robots and more, it belongs
+in the small chunks only.
 
 The sums are the package's up to float summation order: a depth's rows are summed as a batch,
 not one after the other, so the gains differ in their last bits, and a plan whose best
