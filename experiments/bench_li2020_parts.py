@@ -39,17 +39,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 from bench_accelerator import ResultsFile, _int_list  # noqa: E402
+from stage_times import median_call_s  # noqa: E402
 
 from jaxplore import driver, planning, sim  # noqa: E402
 from jaxplore.graph import batching  # noqa: E402
@@ -58,7 +57,7 @@ from jaxplore.graph.tree import nearest_ancestor  # noqa: E402
 from jaxplore.maps import load_world  # noqa: E402
 from jaxplore.planners import get_planner, li2020  # noqa: E402
 from jaxplore.resolve import resolve  # noqa: E402
-from jaxplore.robot import State, planner_context, robot_view  # noqa: E402
+from jaxplore.robot import planner_context, robot_view  # noqa: E402
 from jaxplore.runspec import RunSpec  # noqa: E402
 
 
@@ -75,24 +74,6 @@ def _parse_args(argv=None):
   add("--out", default=None,
       help="markdown file (default results/bench_li2020_parts_<backend>.md)")
   return parser.parse_args(argv)
-
-
-def median_call_s(function, *args, repeats: int) -> tuple[float, float]:
-  """(first call s, compile included; median s of ``repeats`` further calls)."""
-  t0 = time.perf_counter()
-  jax.block_until_ready(function(*args))
-  first = time.perf_counter() - t0
-  times = []
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    jax.block_until_ready(function(*args))
-    times.append(time.perf_counter() - t0)
-  return first, float(np.median(times))
-
-
-def one_robot(state: State, robot: int) -> State:
-  """Robot ``robot``'s state out of the batched ``state`` (every leaf, maps included)."""
-  return jax.tree.map(lambda x: x[robot], state)
 
 
 def parts(config, world):

@@ -39,7 +39,6 @@ def main(argv=None):
   args = parser.parse_args(argv)
 
   import jax
-  import jax.numpy as jnp
   import numpy as np
 
   from jaxplore.planners import li2020

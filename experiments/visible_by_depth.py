@@ -32,7 +32,6 @@ candidates tie to those bits may pick another. Not in the package until a GPU sh
 from __future__ import annotations
 
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -90,14 +89,8 @@ def visible_gains_by_depth(gains, occupied, radius: float, block: int = BLOCK):
   """:func:`li2020.visible_gains` (same arguments but ``block``: rows per loop step, here a
   part of one depth of the tree), up to float summation order."""
   rows, start, parity, valid, member, slots = depth_tables(radius, block)
-  c, h, w = gains.shape
-  pad = int(math.floor(radius)) + 1
-  framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
-  clear = jnp.pad(~occupied, pad + 1, constant_values=True)
-  inner = lambda di, dj: jax.lax.slice(clear, (1 + di, 1 + dj),
-                                       (1 + di + h + 2 * pad, 1 + dj + w + 2 * pad))
-  corners = jnp.stack([inner(di, 0) | inner(0, dj) for di, dj in mapping.NEIGHBOURS_8])
-  clear = inner(0, 0)
+  _, h, w = gains.shape
+  pad, framed_gain, clear, corners = li2020.sight_fields(gains, occupied, radius)
 
   def at(field, row, col):
     """``field``'s [..., H, W] window of the cells ``v + (row, col)``."""

@@ -352,6 +352,26 @@ def sight_levels(radius: float):
   return steps, counts, rim, rim_counts
 
 
+def sight_fields(gains, occupied, radius: float):
+  """What :func:`visible_gains` reads, framed by ``pad`` cells so that every disc offset's window
+  lies inside: (pad, framed gains f32[C, H + 2 pad, W + 2 pad], clear bool[H + 2 pad,
+  W + 2 pad] (not occupied; the frame is clear), corners bool[8, H + 2 pad, W + 2 pad]).
+
+  ``corners[k][x]``: the two cells beside the k-th step of ``mapping.NEIGHBOURS_8`` from ``x``
+  are not both occupied (for a straight step: ``x`` and the cell it steps to; see
+  :func:`ray_tree`'s sides).
+  """
+  _, h, w = gains.shape
+  pad = int(math.floor(radius)) + 1
+  framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
+  # Clear cells framed by pad + 1 (a corner map reads one cell beyond the frame).
+  clear = jnp.pad(~occupied, pad + 1, constant_values=True)
+  inner = lambda di, dj: jax.lax.slice(clear, (1 + di, 1 + dj),
+                                       (1 + di + h + 2 * pad, 1 + dj + w + 2 * pad))
+  corners = jnp.stack([inner(di, 0) | inner(0, dj) for di, dj in mapping.NEIGHBOURS_8])
+  return pad, framed_gain, inner(0, 0), corners
+
+
 def visible_gains(gains, occupied, radius: float, block: int = 1):
   """Per-cell sums of ``gains`` over what a sensor at each cell sees within ``radius``.
 
@@ -398,16 +418,7 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
     rim = np.pad(rim, [(0, 0), (0, 0), (0, -rim.shape[2] % block), (0, 0)])
   steps, counts, rim, rim_counts = (jnp.asarray(a) for a in (steps, counts, rim, rim_counts))
   c, h, w = gains.shape
-  pad = int(math.floor(radius)) + 1
-  framed_gain = jnp.pad(gains, [(0, 0), (pad, pad), (pad, pad)])
-  # Clear cells framed by pad + 1 (a corner map reads one cell beyond the frame).
-  clear = jnp.pad(~occupied, pad + 1, constant_values=True)
-  inner = lambda di, dj: jax.lax.slice(clear, (1 + di, 1 + dj),
-                                       (1 + di + h + 2 * pad, 1 + dj + w + 2 * pad))
-  # corners[k][x]: the two cells beside the k-th step from x are not both occupied (for a
-  # straight step: x and the cell it steps to; see ray_tree's sides).
-  corners = jnp.stack([inner(di, 0) | inner(0, dj) for di, dj in mapping.NEIGHBOURS_8])
-  clear = inner(0, 0)
+  pad, framed_gain, clear, corners = sight_fields(gains, occupied, radius)
 
   def seen_at(parent_masks, step):
     """The mask of the offset of ``step``: its parent's, unless the step squeezes diagonally
