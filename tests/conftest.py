@@ -8,7 +8,6 @@ import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
-
 SHARED_MAPS = Path(__file__).resolve().parents[1].parent / "shared" / "maps"
 
 # Run kernels eagerly and compiled on the same inputs (STYLE.md practice 11).
@@ -30,7 +29,7 @@ def shared_compilation_cache(tmp_path_factory):
   """The suite is compile-bound and several modules compile the same programs (the same small
   worlds and settings behind jit wrappers of their own, on either xdist worker): a compilation
   cache shared by the run's workers loads those instead of compiling them again (with
-  loadscope: 506 -> 467-476 s for the suite on 2 cores). It lives in the run's temporary
+  loadscope: 506 -> 467-515 s over three runs of the suite on 2 cores). It lives in the run's temporary
   folder (an xdist worker's is a subfolder of it), which pytest prunes with its old runs."""
   base = tmp_path_factory.getbasetemp()
   folder = (base.parent if base.name.startswith("popen-gw") else base) / "jax_compilation_cache"
