@@ -6,17 +6,18 @@
 #                                                     # holding room.yaml and room.pgm); the
 #                                                     # table predates the whole-grid belief
 #                                                     # update and li2020's chunks by need
-#   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~8 min (never run yet): li2020 is short
+#   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~7 min (never run yet): li2020 is short
 #                                                     # of its target; where its plan's time
 #                                                     # goes, part by part, and the candidate
 #                                                     # visible gains a depth at a time (185
 #                                                     # loop steps, not ~1,950) alone and in
-#                                                     # whole runs on lab
+#                                                     # whole runs on lab (64 robots; the
+#                                                     # lab part runs it at 256)
 #   bash experiments/gpu_benchmarks.sh variants OUT   # ~4 min: office 1,024 / 4,096 robots, the
 #                                                     # landed whole-grid update undone, and
 #                                                     # leftovers_by_need, against head
-#   bash experiments/gpu_benchmarks.sh lab OUT        # ~6 min: lab li2020 64 / 256, the landed
-#                                                     # changes undone, chunks of 4
+#   bash experiments/gpu_benchmarks.sh lab OUT        # ~7 min: lab li2020 64 / 256, the landed
+#                                                     # changes undone, visible_by_depth
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
 #
 # OUT defaults to experiments/results. Each part is a few command lines below; run them by hand
@@ -35,11 +36,13 @@ case "$part" in
       --out "$out/bench_li2020_parts_gpu.md"
     python experiments/bench_visible_blocks.py --blocks 8 --by-depth 32 64 128 --robots 4 64 \
       --out "$out/bench_visible_blocks_gpu.md"
-    python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
-      --chunk-steps 16 --variants visible_by_depth --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
+    python experiments/bench_lockstep_variants.py --setting lab --robots 64 --steps 32 \
+      --chunk-steps 16 --variants visible_by_depth --out "$out/bench_lockstep_variants_lab_gpu.md"
+    ;;
   lab)
     python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
-      --chunk-steps 16 --variants fixed_chunks,tile_loop,chunk4 --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
+      --chunk-steps 16 --variants fixed_chunks,tile_loop,visible_by_depth \
+      --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
   stages)
     python experiments/stage_times.py --settings office,lab --strategies lockstep \
       --robots 4,64,1024 --out "$out/stage_times_gpu.md" ;;
