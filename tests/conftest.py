@@ -29,8 +29,9 @@ def shared_compilation_cache(tmp_path_factory):
   """The suite is compile-bound and several modules compile the same programs (the same small
   worlds and settings behind jit wrappers of their own, on either xdist worker): a compilation
   cache shared by the run's workers loads those instead of compiling them again (with
-  loadscope: 506 -> 467-542 s over four runs of the suite on 2 cores). It lives in the run's temporary
-  folder (an xdist worker's is a subfolder of it), which pytest prunes with its old runs."""
+  loadscope: 506 -> 467-542 s over four runs of the suite on 2 cores). It lives in the run's
+  temporary folder (an xdist worker's is a subfolder of it), which pytest prunes with its old
+  runs."""
   base = tmp_path_factory.getbasetemp()
   folder = (base.parent if base.name.startswith("popen-gw") else base) / "jax_compilation_cache"
   jax.config.update("jax_compilation_cache_dir", str(folder))
