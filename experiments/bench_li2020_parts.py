@@ -43,6 +43,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
@@ -117,6 +118,16 @@ def parts(config, world):
               gains_of=gains_of, path_gain=path_gain, extract=extract, whole_plan=whole_plan)
 
 
+def visible_loop_steps(config) -> int:
+  """The loop steps of ``li2020.visible_gains`` at the strategy's block (blocks of offsets and
+  of crescent memberships, and the outer loop's steps over two depths each)."""
+  ctx = planner_context(config)
+  _, counts, _, rim_counts = li2020.sight_levels(ctx.r_e_cells)
+  block = li2020.VISIBLE_BLOCK[config.strategy]
+  blocks = lambda n: int(np.sum(-(-n // block)))
+  return blocks(counts) + blocks(rim_counts) + counts.size // 2
+
+
 def _farthest_goal(sp):
   """Per robot, its farthest reachable cell: the longest walk back the tree offers."""
   dist = jnp.where(jnp.isfinite(sp.dist), sp.dist, -1.0)
@@ -151,7 +162,8 @@ def parts_rows(config, world, params, state, chunk: int, repeats: int) -> list[d
   _, cov, _ = timed("path geometry", fn["geometry"], p, robot, sp)
   timed("candidates", fn["candidates"], p, views, sp, cov)
   gains = timed("cell gains", fn["gains_of"], p, views)
-  timed("path gains (one channel)", fn["path_gain"], views, robot, sp, gains)
+  timed("path gains (one channel)", fn["path_gain"], views, robot, sp, gains,
+        trips=lambda _: f"{visible_loop_steps(config)} visible-gain loop steps")
   goal = _farthest_goal(sp)
   timed("extract path (farthest goal)", fn["extract"], robot, sp, goal,
         trips=lambda out: f"{int(out[1].max())} cells")
