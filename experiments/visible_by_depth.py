@@ -102,13 +102,14 @@ def visible_gains_by_depth(gains, occupied, radius: float, block: int = BLOCK):
     step_rows, first, odd, ok, member_rows = table
     previous = jax.lax.dynamic_index_in_dim(masks, 1 - odd, 0, keepdims=False)
     parent_masks = previous[step_rows[:, 4]]
+    # One slice of the stack per row: ``corners[k]`` first would gather a whole framed plane.
     corner = jax.vmap(lambda k, r, col: jax.lax.dynamic_slice(
         corners, (k, r + pad, col + pad), (1, h, w))[0])(
             step_rows[:, 5], step_rows[:, 2], step_rows[:, 3])
     seen = parent_masks & corner & ok[:, None, None]
-    sight = seen & jax.vmap(lambda r, col: at(clear, r, col))(step_rows[:, 0], step_rows[:, 1])
-    masks = jax.lax.dynamic_update_slice(masks, sight[None], (odd, first, 0, 0))
-    shifted = jax.vmap(lambda r, col: at(framed_gain, r, col))(step_rows[:, 0], step_rows[:, 1])
+    clear_there, shifted = jax.vmap(lambda r, col: (at(clear, r, col), at(framed_gain, r, col)))(
+        step_rows[:, 0], step_rows[:, 1])
+    masks = jax.lax.dynamic_update_slice(masks, (seen & clear_there)[None], (odd, first, 0, 0))
     contribution = jnp.where(seen[:, None], shifted, 0.0)  # [block, C, H, W]
     full = full + jnp.sum(contribution, 0)
     crescent = crescent + jnp.stack([
