@@ -282,21 +282,25 @@ def no_plan(capacity: int, robot: RobotView) -> Plan:
 
 
 def unknown_neighbour(cell, unknown, occupied):
-  """An unknown 8-neighbour of ``cell`` that is not sealed off by two occupied cells, else ``cell``.
+  """The first 8-neighbour of ``cell`` (in ``mapping.NEIGHBOURS_8`` order) inside the grid that is
+  unknown and not sealed off by two occupied cells, else ``cell``.
 
   Used as a look-at point: facing it lets a narrow field of view observe what made ``cell`` a
   frontier.
   """
   h, w = unknown.shape
-  get = lambda grid, r, c, fill: grid.at[r, c].get(mode="fill", fill_value=fill)
-  best = cell
-  found = jnp.bool_(False)
+  inside = (cell[0] >= 0) & (cell[0] < h) & (cell[1] >= 0) & (cell[1] < w)
+  # The 3 x 3 cells around ``cell``, outside the grid not unknown and occupied. (Indexing the
+  # grids cell by cell wrapped a neighbour at row or column -1 round to the far border.)
+  patch = lambda grid, fill: jax.lax.dynamic_slice(
+      jnp.pad(grid, 1, constant_values=fill), (cell[0], cell[1]), (3, 3))
+  unknown, occupied = patch(unknown, False), patch(occupied, True)
+  ok = []
   for di, dj in mapping.NEIGHBOURS_8:
-    r, c = cell[0] + di, cell[1] + dj
-    ok = get(unknown, r, c, False)
+    open_ = unknown[1 + di, 1 + dj]
     if di != 0 and dj != 0:
-      ok = ok & ~(get(occupied, cell[0] + di, cell[1], True) & get(occupied, cell[0], cell[1] + dj, True))
-    take = ok & ~found
-    best = jnp.where(take, jnp.stack([r, c]).astype(jnp.int32), best)
-    found = found | ok
-  return best
+      open_ = open_ & ~(occupied[1 + di, 1] & occupied[1, 1 + dj])
+    ok.append(open_)
+  ok = jnp.stack(ok) & inside
+  step = jnp.asarray(mapping.NEIGHBOURS_8, jnp.int32)[jnp.argmax(ok)]
+  return jnp.where(jnp.any(ok), cell + step, cell).astype(cell.dtype)
