@@ -2,10 +2,15 @@
 # The open GPU measurements, in the order they matter, each writing its results file as its rows
 # finish (a run cut short keeps what it measured). On one H100/H200 through the device tool:
 #
-#   bash experiments/gpu_benchmarks.sh table OUT EB   # ~7 min: the README table (EB: a folder
+#   bash experiments/gpu_benchmarks.sh table OUT EB   # ~7-9 min: the README table (EB: a folder
 #                                                     # holding room.yaml and room.pgm); the
 #                                                     # table predates the whole-grid belief
-#                                                     # update and li2020's chunks by need
+#                                                     # update and li2020's chunks by need.
+#                                                     # lab now tries 4,096 robots too (li2020's
+#                                                     # rate rose with the batch, 1.6x / 3.4x /
+#                                                     # 5.0x at 64 / 256 / 1,024: its target may
+#                                                     # be a question of batch; skipped if the
+#                                                     # 1,024 row projects over 60 s)
 #   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~7 min (never run yet): li2020 is short
 #                                                     # of its target; where its plan's time
 #                                                     # goes, part by part, and the candidate
@@ -54,7 +59,8 @@ case "$part" in
       --robots 64,1024,4096 --steps 96 --budget-s 25 --explore-bench "$eb" \
       --out "$out/bench_room_gpu.md"
     python experiments/bench_accelerator.py --settings lab --strategies lockstep \
-      --robots 64,256,1024 --steps 32 --chunk-steps 16 --budget-s 40 --out "$out/bench_lab_gpu.md" ;;
+      --robots 64,256,1024,4096 --steps 32 --chunk-steps 16 --budget-s 60 \
+      --out "$out/bench_lab_gpu.md" ;;
   *)
     echo "unknown part $part: table, variants, li2020, lab or stages" >&2; exit 2 ;;
 esac
