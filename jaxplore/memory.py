@@ -137,4 +137,43 @@ def fit_chunk(config: SimConfig, requested: int, n_dev: int = 1, fixed: bool = F
   return chunk
 
 
-__all__ = ["MEMORY_FRACTION", "available_bytes", "check_fits", "estimate_bytes", "fit_chunk"]
+def compiled_bytes(compiled) -> int | None:
+  """What running ``compiled`` (a ``jax.stages.Compiled``) allocates on one device beyond its
+  inputs, in XLA's own numbers: its outputs and temporaries, less the outputs that reuse input
+  buffers. None where the backend does not say."""
+  try:
+    stats = compiled.memory_analysis()
+  except (NotImplementedError, RuntimeError):
+    return None
+  if stats is None:
+    return None
+  return int(stats.output_size_in_bytes + stats.temp_size_in_bytes - stats.alias_size_in_bytes)
+
+
+def check_compiled(compiled, config: SimConfig, robots: int, n_dev: int = 1) -> None:
+  """Raises :class:`ConfigError` when the compiled chunk function would not fit beside the batch
+  already in memory (call it after the reset and the compile, before the first chunk runs).
+
+  The model of :func:`estimate_bytes` comes before any compute; this second check reads what
+  XLA will allocate. It matters where the model is short: forcing ``lockstep`` on a CPU,
+  li2020 on lab compiles to 1.25-1.4x the model's estimate (0.58 / 1.45 / 5.8 GiB against 0.47 /
+  1.14 / 4.2 at 256 / 1,024 / 4,096 robots), the visible gains' masks of a planning chunk and
+  the batch's state twice (in and out) being more than its per-cell constants allow.
+  """
+  import jax
+  need = compiled_bytes(compiled)
+  if need is None:
+    return
+  if jax.default_backend() == "cpu":
+    need *= n_dev  # host devices share the host's memory
+  have = available_bytes()
+  if need > MEMORY_FRACTION * have:
+    raise ConfigError(
+        f"{robots} robots on a {config.height}x{config.width} grid ({config.strategy} strategy) "
+        f"compiled to a program that allocates {_gib(need)} beside the batch, more than "
+        f"{MEMORY_FRACTION:.0%} of the {_gib(have)} available; use fewer robots (a sweep: "
+        f"smaller chunks), or the other strategy")
+
+
+__all__ = ["MEMORY_FRACTION", "available_bytes", "check_compiled", "check_fits",
+           "compiled_bytes", "estimate_bytes", "fit_chunk"]

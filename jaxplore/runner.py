@@ -90,6 +90,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   t0 = time.perf_counter()
   compiled = driver.compile_advance(config, chunk_epochs, n_dev, world, batch.params, state)
   t_compile = time.perf_counter() - t0
+  memory.check_compiled(compiled, config, robots, n_dev)
   interrupts.check(nothing)
 
   bar = None

@@ -89,6 +89,19 @@ def test_absurd_batch_is_refused_with_the_numbers():
     jaxplore.run(**dict(SMALL, robots=10_000_000))
 
 
+def test_a_program_that_compiles_too_large_is_refused_before_it_runs(small_run, tmp_path,
+                                                                     monkeypatch):
+  """Where the memory model is short of what XLA compiles (forced lockstep on a CPU), the
+  compiled program's own numbers refuse the run before its first chunk; nothing is written."""
+  from jaxplore import memory
+  monkeypatch.setattr(memory, "estimate_bytes", lambda config, robots: 0)  # the model passes it
+  monkeypatch.setattr(memory, "available_bytes", lambda: 1 << 10)
+  out = tmp_path / "too_large"
+  with pytest.raises(ConfigError, match="2 robots on a .* compiled to a program that allocates"):
+    jaxplore.run(out=out, **SMALL)
+  assert not out.exists() or not any(out.iterdir())
+
+
 @pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
 def test_cli_run_and_maps(tmp_path, capsys):
   out = tmp_path / "cli"

@@ -376,6 +376,24 @@ def test_memory_guard_shrinks_a_chunk_or_refuses_with_the_numbers(monkeypatch, c
     jaxplore.sweep(GRID, seeds=2, chunk_size=10_000_000, **SETTINGS)
 
 
+def test_a_chunk_program_that_compiles_too_large_is_refused_then_resumes(reference, tmp_path,
+                                                                        monkeypatch):
+  """The memory model passes the chunk, the compiled program's own numbers do not: refused
+  before the chunk runs, naming the numbers; the sweep resumes once there is room."""
+  _, ref_out, _ = reference
+  out = tmp_path / "too_large"
+  with monkeypatch.context() as patch:
+    patch.setattr(memory, "estimate_bytes", lambda config, robots: 0)
+    patch.setattr(memory, "available_bytes", lambda: 1 << 10)
+    with pytest.raises(ConfigError, match="3 robots on a 40x40 grid .* allocates .*smaller chunks"):
+      jaxplore.sweep(GRID, seeds=2, out=out, chunk_size=3, **SETTINGS)
+  assert not list((out / "chunks").glob("*.parquet"))
+  resumed = jaxplore.sweep(resume=out, progress=False, quiet=True, devices=1)
+  assert resumed.timing["chunks_run"] == 3
+  for mine, theirs in zip(_tables(out), _tables(ref_out)):
+    pd.testing.assert_frame_equal(mine, theirs)
+
+
 def test_bad_sweep_arguments_are_refused_before_compute():
   with pytest.raises(ConfigError, match="cannot sweep 'gamma'"):
     jaxplore.sweep({"gamma": [1.0]}, seeds=1, **SETTINGS)

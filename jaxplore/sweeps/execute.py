@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from jaxplore import driver, interrupts, results
+from jaxplore import driver, interrupts, memory, results
 from jaxplore.resolve import Resolved
 from jaxplore.sweeps.schedule import Chunk, Group, Schedule, chunk_paths
 
@@ -49,9 +49,11 @@ def run_chunk(group_run: GroupRun, chunk: Chunk, n_dev: int, tally: dict, times:
   if group_run.compiled is None:
     t0 = time.perf_counter()
     with driver.count_compiles(tally):
-      group_run.compiled = driver.compile_advance(config, group.chunk_epochs, n_dev, world,
-                                                  batch.params, state)
+      compiled = driver.compile_advance(config, group.chunk_epochs, n_dev, world, batch.params,
+                                        state)
     times["compile_s"] += time.perf_counter() - t0
+    memory.check_compiled(compiled, config, group.chunk_size, n_dev)
+    group_run.compiled = compiled
   interrupts.check("interrupted while compiling")
   rollout = driver.drive(group_run.compiled, world, batch.params, state, config.max_steps)
   times["run_s"] += rollout.run_s
