@@ -155,10 +155,10 @@ def check_compiled(compiled, config: SimConfig, robots: int, n_dev: int = 1) -> 
   already in memory (call it after the reset and the compile, before the first chunk runs).
 
   The model of :func:`estimate_bytes` comes before any compute; this second check reads what
-  XLA will allocate. It matters where the model is short: forcing ``lockstep`` on a CPU,
-  li2020 on lab compiles to 1.25-1.4x the model's estimate (0.58 / 1.45 / 5.8 GiB against 0.47 /
-  1.14 / 4.2 at 256 / 1,024 / 4,096 robots), the visible gains' masks of a planning chunk and
-  the batch's state twice (in and out) being more than its per-cell constants allow.
+  XLA will allocate beyond the inputs (the batch, already in memory). It matters where the model
+  is short: forcing ``lockstep`` on a CPU, li2020 on lab compiles to arguments, outputs and
+  temporaries of 0.58 / 1.45 / 5.8 GiB at 256 / 1,024 / 4,096 robots against the model's 0.47 /
+  1.14 / 4.2 (its per-cell constants were fitted to a GPU's peaks).
   """
   import jax
   need = compiled_bytes(compiled)
