@@ -205,19 +205,18 @@ def test_gap_narrower_than_robot_ends_exhausted():
   occ = grid.occupied.copy()
   occ[20:22, 29:31] = False
   grid = grid.__class__(occ, 0.1, (0.0, 0.0), "slit")
-  config, world, params = setup(grid, max_steps=400, r_max=1.5)
+  # rooms_run's config (same shapes and budget, a lidar buffer for 3 m): its compiled program
+  # serves; the shorter range is a traced parameter.
+  config, world, _ = setup(grid)
+  params = sim.broadcast_params(make_params("li2020", res=grid.res, r_max=1.5), ROBOTS)
   starts = jnp.tile(jnp.asarray([1.0, 2.0, 0.0]), (ROBOTS, 1))
   state, records = sim.rollout(config, world, params, jax.random.split(jax.random.PRNGKey(2), ROBOTS), starts)
   assert np.all(np.asarray(state.reason) == sim.EXHAUSTED), np.asarray(state.reason)
   assert np.all(np.asarray(records.coverage)[-1] < 0.99)
 
 
-def test_step_eager_equals_jit():
-  grid = box_world(16, 20, 0.1, walls=((1, 8, 9, 10),))
-  params = make_params("li2020", res=grid.res, r_max=0.8)
-  config = config_for(grid.shape, grid.res, params, max_steps=30, n_beams=12)
-  world = sim.make_world(grid, float(params.r_robot))
-  params = sim.broadcast_params(params, ROBOTS)
+def test_step_eager_equals_jit(rooms):
+  config, world, params = setup(rooms)  # rooms_run's config: programs compiled for it serve
   keys = jax.random.split(jax.random.PRNGKey(4), ROBOTS)
   state = sim.reset_batch(config, world, params, keys)
   state = jax.jit(jax.vmap(lambda p, s: sim.plan(config, world, p, s)))(params, state)
@@ -257,7 +256,7 @@ def test_robot_inside_newly_inflated_walls_can_drive_out(rooms):
   # The belief says a wall is right next to the robot (inside its radius): it must still be able
   # to drive out of the inflated zone instead of ending `exhausted`.
   from jaxplore.graph.dijkstra import shortest_paths
-  config, world, params = setup(rooms, max_steps=30)
+  config, world, params = setup(rooms)  # rooms_run's config: programs compiled for it serve
   starts = jnp.tile(jnp.asarray([1.05, 2.05, 0.0]), (ROBOTS, 1))
   state = sim.reset_batch(config, world, params, jax.random.split(jax.random.PRNGKey(6), ROBOTS), starts)
   state = state.replace(logodds=state.logodds.at[:, 20, 11].set(5.0))  # a believed wall 0.1 m away
