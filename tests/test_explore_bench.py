@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 import jaxplore
-from conftest import SHARED_MAPS
+from conftest import SHARED_MAPS, needs_shared_maps
 
 BLUEPRINTS = SHARED_MAPS / "explore_bench"
 NAMES = ("corner", "corridor", "loop", "loop_with_corridor", "room", "room_with_corner")
 
 
 @pytest.mark.slow  # a whole episode or CLI run: `pytest -m slow` (see README)
-@pytest.mark.skipif(not BLUEPRINTS.exists(), reason="the shared maps folder is not beside this checkout")
+@needs_shared_maps
 @pytest.mark.parametrize("name", NAMES)
 def test_blueprint_runs_with_the_explore_bench_preset(name):
   start = "6,6,0" if name == "corner" else "8,8,0"

@@ -1,10 +1,12 @@
 """The memory guard: its model against peaks measured on a GPU (lockstep), and the check of a
 compiled program's own numbers."""
 
+import jax
+import jax.numpy as jnp
 import pytest
 
 from jaxplore import memory
-from jaxplore.config import ConfigError
+from jaxplore.config import ConfigError, SimConfig
 from jaxplore.resolve import resolve
 from jaxplore.runspec import RunSpec
 
@@ -27,8 +29,6 @@ def test_the_lockstep_estimate_covers_the_measured_peak_without_tripling_it(
 
 def _program(donate: bool):
   """``x -> 2 x + 1`` on 1,000 float32, its input donated or not."""
-  import jax
-  import jax.numpy as jnp
   return jax.jit(lambda x: 2.0 * x + 1.0, donate_argnums=0 if donate else ()).lower(
       jnp.zeros(1000)).compile()
 
@@ -39,7 +39,6 @@ def test_compiled_bytes_count_the_output_unless_it_reuses_the_input():
 
 
 def test_a_compiled_program_that_does_not_fit_is_refused_with_the_numbers(monkeypatch):
-  from jaxplore.config import SimConfig
   compiled = _program(False)
   need = memory.compiled_bytes(compiled)
   config = SimConfig(height=30, width=40, res=0.1)

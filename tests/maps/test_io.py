@@ -15,12 +15,9 @@ from hypothesis import strategies as st
 from PIL import Image
 from scipy import ndimage
 
+from conftest import SHARED_MAPS, needs_shared_maps
 from jaxplore.maps import GridMap, MapError, load_map, resample, save_map
 
-SHARED_MAPS = (Path(__file__).resolve().parents[2] / ".." / "shared" / "maps").resolve()
-needs_shared_maps = pytest.mark.skipif(
-    not SHARED_MAPS.is_dir(),
-    reason=f"shared maps folder {SHARED_MAPS} not present beside the checkout")
 
 # MAPS.md's tables: size (W x H cells), free m², largest 4-connected free component m².
 MAPS_TABLE = {

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -10,6 +9,7 @@ import pytest
 from PIL import Image
 from scipy import ndimage
 
+from conftest import SHARED_MAPS, needs_shared_maps
 from jaxplore.maps import (
     WORLDS,
     GridMap,
@@ -24,7 +24,6 @@ from jaxplore.maps import (
     world_table,
 )
 
-SHARED_MAPS = (Path(__file__).resolve().parents[2] / ".." / "shared" / "maps").resolve()
 
 # The free areas documented in jaxplore/maps/worlds.py (m²).
 DOCUMENTED_FREE_M2 = {
@@ -134,7 +133,7 @@ def test_load_world_from_a_yaml_path(tmp_path):
     load_world(tmp_path / "saved.yaml", res=0.05)
 
 
-@pytest.mark.skipif(not SHARED_MAPS.is_dir(), reason=f"shared maps folder {SHARED_MAPS} absent")
+@needs_shared_maps
 def test_load_world_shared_map():
   grid = load_world(str(SHARED_MAPS / "intel.yaml"), res=0.2)
   assert grid.name == "intel" and grid.res == 0.2 and grid.shape == (140, 139)
