@@ -27,6 +27,7 @@ import jax.numpy as jnp
 
 from jaxplore import mapping, motion, posegraph, sensor
 from jaxplore.config import Params, SimConfig
+from jaxplore.errors import ConfigError
 from jaxplore.planners import base as planners_base
 from jaxplore.world import World, cell_centre, cell_of, sample_start, to_cells
 
@@ -113,15 +114,30 @@ def keeps_entropy_map(config: SimConfig) -> bool:
 def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
                     ) -> planners_base.PlannerContext:
   """What the planner is told of the run (:class:`~jaxplore.planners.base.PlannerContext`), for
-  the whole grid or for a window of ``shape`` cells."""
+  the whole grid or for a window of ``shape`` cells.
+
+  A config without ``planner_settings`` (one built by hand, not by :func:`jaxplore.resolve.resolve`)
+  gives the planner its registered defaults; settings of another planner's type, and a
+  planner that reads the pose graph without one, are refused.
+  """
   height, width = shape if shape is not None else (config.height, config.width)
+  spec = planners_base.get_planner(config.planner)
+  settings = config.planner_settings if config.planner_settings is not None else spec.settings
+  if spec.settings is not None and not isinstance(settings, type(spec.settings)):
+    raise ConfigError(f"planner {config.planner!r}: planner_settings must be a "
+                      f"{type(spec.settings).__module__}.{type(spec.settings).__qualname__}, "
+                      f"got {type(settings).__qualname__}")
+  if spec.needs_pose_graph and not config.graph_nodes:
+    raise ConfigError(f"planner {config.planner!r} plans on the SLAM pose graph, but "
+                      f"SimConfig.graph_nodes is 0: give it room for the run's keyframes "
+                      f"(posegraph.keyframe_bound; jaxplore.resolve.resolve sets it)")
   return planners_base.PlannerContext(
       height=height, width=width, res=config.res, path_capacity=config.path_capacity,
       dijkstra_max_sweeps=config.dijkstra_max_sweeps,
       dijkstra_tiles_after_rounds=config.dijkstra_tiles_after_rounds,
       max_inflation_cells=config.max_inflation_cells, max_steps=config.max_steps,
       r_e_cells=config.r_e / config.res if keeps_entropy_map(config) else 0.0,
-      settings=config.planner_settings, strategy=config.strategy)
+      settings=settings, strategy=config.strategy)
 
 
 def robot_view(config: SimConfig, world: World, state: State) -> planners_base.RobotView:

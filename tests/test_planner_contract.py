@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from jaxplore import sim
-from jaxplore.config import config_for, make_params
+from jaxplore.config import ConfigError, config_for, make_params
 from jaxplore.planners import base, frontier
 from conftest import box_world
 
@@ -104,3 +104,27 @@ def test_the_entropy_map_is_kept_only_for_planners_that_read_it():
     state = jax.eval_shape(lambda: sim.reset(config, world, params, jax.random.PRNGKey(0)))
     assert (state.entropy_map is not None) == kept
     assert (sim.planner_context(config).r_e_cells > 0) == kept
+
+
+def test_a_config_built_by_hand_gives_the_planner_its_registered_settings():
+  """``config_for`` without ``planner_settings`` (not through the resolver): the engine hands the
+  planner its registered defaults (reg and ahmed read them while tracing); another planner's
+  settings, and a pose-graph planner without a graph, are refused by name."""
+  grid = box_world(20, 24)
+  params = make_params(res=grid.res, r_max=1.0)
+  with_settings = [name for name in base.planner_names() if base.get_planner(name).settings]
+  assert {"li2020", "gpbo", "reg", "ahmed"} <= set(with_settings)
+  for name in base.planner_names():
+    graph = {"graph_nodes": 16} if base.get_planner(name).needs_pose_graph else {}
+    config = config_for(grid.shape, grid.res, params, max_steps=8, planner=name, **graph)
+    assert config.planner_settings is None
+    assert sim.planner_context(config).settings == base.get_planner(name).settings
+    assert sim.planner_context(config, (8, 8)).settings == base.get_planner(name).settings
+  ahmed_settings = base.get_planner("ahmed").settings
+  config = config_for(grid.shape, grid.res, params, max_steps=8, planner="reg",
+                      planner_settings=ahmed_settings)
+  with pytest.raises(ConfigError, match="'reg': planner_settings must be a jaxplore.planners.reg"):
+    sim.planner_context(config)
+  config = config_for(grid.shape, grid.res, params, max_steps=8, planner="ahmed")
+  with pytest.raises(ConfigError, match="'ahmed' plans on the SLAM pose graph.*graph_nodes is 0"):
+    sim.planner_context(config)

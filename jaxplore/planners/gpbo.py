@@ -214,7 +214,7 @@ def candidate_poses(reference, settings: Settings, res: float):
                summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, GP-UCB (Li's Method 29)")
 def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, memory):
   """One GP/BO planning round for one robot (see the module docstring). Returns (Plan, memory)."""
-  settings: Settings = ctx.settings if ctx.settings is not None else Settings()
+  settings: Settings = ctx.settings
   w = _weights(params)
   h, wd = ctx.height, ctx.width
   res = ctx.res

@@ -537,7 +537,7 @@ def _covariance_from_sums(sums, xy, xy_root, cov0):
 
 def road_mark_cells(ctx) -> int:
   """Cells between road-mark points (:class:`Settings` ``road_mark_m``); 1 = every cell."""
-  settings = ctx.settings if ctx.settings is not None else Settings()
+  settings = ctx.settings
   if settings.road_mark_m <= 0:
     return 1
   return max(1, int(round(settings.road_mark_m / ctx.res)))
@@ -629,7 +629,7 @@ def path_gains(config, view, robot, pred, gains):
   idx = jnp.arange(h * w, dtype=jnp.int32)
   parent, has_parent, d_row, d_col, root = _tree_steps(config, robot, pred)
   radius = config.r_e_cells
-  settings = config.settings if config.settings is not None else Settings()
+  settings = config.settings
   if settings.region == "visible":
     # Each cell once per path, counted where it enters the region of a waypoint (seen from that
     # waypoint), or where it leaves it (seen from the waypoint it leaves), whichever sum is
@@ -682,7 +682,7 @@ def average_observable_entropy(view: base.BeliefView, radius: float):
 def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key, memory):
   """One planning round of Algorithm 1 (see the module docstring). Returns (Plan, memory)."""
   weights = params.planner
-  settings = config.settings if config.settings is not None else Settings()
+  settings = config.settings
   h, w = config.height, config.width
   b_e, b_g = boundaries(view, weights["tau_e"])
   sp = shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]), robot.cell,

@@ -25,7 +25,7 @@ from bench_visible_gains import visible_gains_one_loop  # noqa: E402  (visible_g
 
 H, W = 26, 34
 CONFIG = base.PlannerContext(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
-                             r_e_cells=3.0)
+                             r_e_cells=3.0, settings=li2020.Settings())
 
 
 # Jitted once per static context and shared by the tests (compiles dominate this file's time).
