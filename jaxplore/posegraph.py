@@ -156,7 +156,7 @@ def line_free(logodds, a_xy, b_xy, origin, res: float, free_logit, samples: int)
   pts = a_xy[None, :] + t * (b_xy - a_xy)[None, :]
   rows = jnp.floor((pts[:, 1] - origin[1]) / res).astype(jnp.int32)
   cols = jnp.floor((pts[:, 0] - origin[0]) / res).astype(jnp.int32)
-  values = logodds.at[rows, cols].get(mode="fill", fill_value=jnp.inf)
+  values = logodds.at[rows, cols].get(mode="fill", fill_value=jnp.inf, wrap_negative_indices=False)
   return jnp.all(values < free_logit)
 
 

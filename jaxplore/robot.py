@@ -184,7 +184,10 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
 
     seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
     # Relocalisation: enough beams end on occupied cells the belief already knows well.
-    old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0)
+    # An end off the grid (an estimate near the edge) is no cell the belief knows: 0, not the
+    # far edge's cell that a wrapped negative index would read.
+    old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0,
+                                                        wrap_negative_indices=False)
     well_mapped = (old_end > mapping.logit(params.p_occ)) & (
         mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
     hits = jnp.sum(well_mapped & scan.hit)

@@ -243,6 +243,32 @@ def test_no_loop_closure_through_a_wall_or_facing_away():
   assert int(loop_scene(heading=math.pi).n_loops) == 0
 
 
+@EAGER_AND_JIT
+def test_a_segment_off_the_grid_is_not_free_on_any_side(transform):
+  """``line_free`` against a plain loop over its sample points: a cell off the grid is never
+  free, on the top and left sides too (a negative index once wrapped to the far, free edge)."""
+  h, w, res, samples = 12, 16, 0.1, 40
+  logodds = np.full((h, w), FREE_LOGIT, np.float32)
+  logodds[5, 6:9] = 3.0  # one believed wall inside
+  line_free = transform(lambda a, b: posegraph.line_free(jnp.asarray(logodds), a, b,
+                                                         jnp.zeros(2), res, FREE_LOGIT + 1.0, samples))
+  rng = np.random.default_rng(4)
+  ends = rng.uniform([-0.35, -0.35], [w * res + 0.35, h * res + 0.35], (60, 2)).astype(np.float32)
+  results, expected = [], []
+  for a, b in zip(ends[::2], ends[1::2]):
+    points = a + np.linspace(0.0, 1.0, samples, dtype=np.float32)[:, None] * (b - a)
+    rows = np.floor(points[:, 1] / res).astype(int)
+    cols = np.floor(points[:, 0] / res).astype(int)
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    expected.append(bool(inside.all()) and bool((logodds[rows, cols] < FREE_LOGIT + 1.0).all()))
+    results.append(bool(line_free(jnp.asarray(a), jnp.asarray(b))))
+  assert results == expected
+  assert any(expected) and not all(expected)
+  # Off the top-left corner: rows and columns -1, whose wrapped cells are free.
+  assert not bool(line_free(jnp.asarray([0.05, 0.55]), jnp.asarray([-0.05, 0.55])))
+  assert not bool(line_free(jnp.asarray([0.55, 0.05]), jnp.asarray([0.55, -0.05])))
+
+
 def test_full_loop_list_counts_dropped_closures():
   logodds = jnp.full((20, 20), FREE_LOGIT)
   poses = [[0.5 + 0.1 * k, 0.5, 0.0] for k in range(16)]

@@ -248,24 +248,48 @@ def test_a_waypoint_in_a_wall_believed_free_ends_the_path_and_is_learnt():
   assert float(state.logodds[4, 10]) == pytest.approx(float(params.l_max))
 
 
+# One compiled scan for the tests of a robot in a mapped room (the world and parameters traced).
+SENSE = jax.jit(robot._sense, static_argnums=0)
+
+
+def sensed_in_a_mapped_room(truth_pose, estimate, fov):
+  """A robot in a 4 m x 4 m walled room split by a wall at x = 2 m, whose belief holds every
+  cell at the truth's clamp, scanned (360 beams over ``fov``, 3 m) at ``truth_pose`` while it
+  believes itself at ``estimate``. Returns (grid, params, state after the scan)."""
+  grid = box_world(40, 40, res=0.1, walls=((8, 32, 20, 21),))
+  params = make_params(res=0.1, r_max=3.0, fov=fov)
+  config = config_for(grid.shape, grid.res, make_params(res=0.1, r_max=3.0, fov=2 * math.pi),
+                      max_steps=10, n_beams=360, pose_noise=True)
+  world = sim.make_world(grid, float(params.r_robot), tuple(truth_pose[:2]))
+  state = robot.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray(truth_pose))
+  truth = jnp.asarray(grid.occupied)
+  state = state.replace(
+      logodds=jnp.where(truth, params.l_max, params.l_min).astype(jnp.float32),
+      pose_est=jnp.asarray(estimate, jnp.float32), cov=jnp.eye(3, dtype=jnp.float32) * 0.01)
+  return grid, params, SENSE(config, world, params, state, jax.random.PRNGKey(1), jnp.bool_(True))
+
+
 def test_a_scan_that_relocalises_the_robot_is_integrated_at_the_corrected_pose():
   """A robot in a mapped room (its belief holds every cell at the truth's clamp) whose estimate
   is 3 degrees off in heading: the scan relocalises it, and is integrated at the corrected pose,
   as a SLAM front end matches a scan before adding it. Integrated at the pose before the
   correction, it laid the far walls' cells across the room: wall cells seen free, free cells
   seen occupied. Oracle: the truth."""
-  grid = box_world(40, 40, res=0.1, walls=((8, 32, 20, 21),))
-  params = make_params(res=0.1, r_max=3.0, fov=2 * math.pi)
-  config = config_for(grid.shape, grid.res, params, max_steps=10, n_beams=360, pose_noise=True)
-  world = sim.make_world(grid, float(params.r_robot), (1.05, 2.05))
-  state = robot.reset(config, world, params, jax.random.PRNGKey(0), jnp.asarray([1.05, 2.05, 0.3]))
-  truth = jnp.asarray(grid.occupied)
-  state = state.replace(
-      logodds=jnp.where(truth, params.l_max, params.l_min).astype(jnp.float32),
-      pose_est=state.pose.at[2].add(math.radians(3.0)), cov=jnp.eye(3, dtype=jnp.float32) * 0.01)
-  after = jax.jit(lambda s: robot._sense(config, world, params, s, jax.random.PRNGKey(1),
-                                         jnp.bool_(True)))(state)
+  grid, params, after = sensed_in_a_mapped_room([1.05, 2.05, 0.3],
+                                                [1.05, 2.05, 0.3 + math.radians(3.0)], 2 * math.pi)
   assert abs(float(after.pose_est[2] - after.pose[2])) < math.radians(0.3)  # relocalised
   l = np.asarray(after.logodds)
   assert not np.any(grid.occupied & (l < params.l_max))  # no wall cell saw a free observation
   assert not np.any(~grid.occupied & (l > params.l_min))  # no free cell saw a hit
+
+
+def test_beams_that_end_off_the_grid_do_not_relocalise_the_robot():
+  """Facing the bottom wall (row 0) with a narrow fov, believed 0.12 m nearer it than it is: every
+  beam ends beyond the grid's edge, at row -1, on no cell the belief knows, so the scan does not
+  relocalise the robot (a wrapped index read row 39, the top wall, as a well-mapped hit of each
+  beam). Believed 0.04 m nearer, the ends fall inside the wall and it does relocalise."""
+  truth = [2.05, 0.45, -math.pi / 2]
+  _, _, off_grid = sensed_in_a_mapped_room(truth, [2.05, 0.33, -math.pi / 2], 0.4)
+  np.testing.assert_allclose(np.asarray(off_grid.pose_est), [2.05, 0.33, -math.pi / 2], atol=1e-6)
+  _, _, on_grid = sensed_in_a_mapped_room(truth, [2.05, 0.41, -math.pi / 2], 0.4)
+  assert abs(float(on_grid.pose_est[1]) - 0.45) < 0.02
