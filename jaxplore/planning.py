@@ -47,7 +47,9 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
   inflated = mapping.within_radius(wall_distance_sq.astype(jnp.float32),
                                    params.r_robot / config.res)
   escape_zone = free & inflated
-  escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(True, mode="drop") & escape_zone
+  # A cell off the grid (an estimate beyond the edge) starts no route: dropped, not wrapped.
+  escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(
+      True, mode="drop", wrap_negative_indices=False) & escape_zone
   framed_distance = mapping.frame(wall_distance_sq, -1)
 
   def widen(_, escape):

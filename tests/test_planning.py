@@ -92,6 +92,25 @@ def test_escape_route_never_leads_closer_to_a_wall(transform, seed):
                                 (free & (distance > 3.0 + 1e-6)) | escape)
 
 
+@pytest.mark.parametrize("cell", [(-1, 5), (5, -1)])
+def test_a_robot_cell_off_the_grid_starts_no_escape_route(cell):
+  """An estimate off the top or left edge (pose noise) puts the robot on no cell: there is no
+  escape route, only the cells clear of the walls are traversable (a wrapped index started the
+  route at the far edge's cell, here inside the inflation of a wall 3 cells from it)."""
+  grid = box_world(24, 24, res=0.1)
+  params = make_params(res=0.1, r_robot=0.3, r_max=0.5)
+  config = config_for(grid.shape, grid.res, params, max_steps=4)
+  world = sim.make_world(grid, 0.3, (1.2, 1.2))
+  logodds = np.full(grid.shape, FREE)
+  logodds[20, :] = logodds[:, 20] = OCCUPIED
+  state = belief_state(config, world, params, logodds, (1.25, 1.25))
+  view = jax.jit(lambda s, c: sim.belief_view(config, params, s, c))(state, jnp.asarray(cell))
+  occupied = logodds == OCCUPIED
+  clear = ~occupied & (ndimage.distance_transform_edt(~occupied) > 3.0 + 1e-6)
+  assert not clear[23, 5] and not clear[5, 23]  # the wrapped cells lie in the inflation
+  np.testing.assert_array_equal(np.asarray(view.traversable), clear)
+
+
 def test_nearest_frontier_does_not_follow_a_notch_deeper_into_the_inflated_zone():
   # A 1-cell notch in a wall, its end unknown, is the nearest frontier to a robot standing two
   # cells from the wall (inside its 0.2 m radius). The notch is narrower than the robot: the plan
