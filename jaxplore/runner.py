@@ -61,7 +61,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
       ``strategy``.
     out: results folder (created; checked before any compute); None writes nothing.
     progress: a progress bar over steps.
-    devices: how many local devices to shard the batch over (default: all).
+    devices: how many local devices to shard the batch over (default: all; at most one per robot;
+      a batch that does not divide runs with copies of its last robot, their results dropped).
     quiet: print no summary.
   Raises:
     ConfigError, MapError: a bad setting, before any compute.
@@ -76,11 +77,15 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   resolved = resolve(spec)
   config, world, grid = resolved.config, resolved.world, resolved.grid
   robots = spec.robots
-  memory.check_fits(config, robots)
+  # Every device holds as many robots: a batch that does not divide is padded with copies of
+  # its last robot, whose results are dropped (each robot's run is its own).
+  n_dev = min(driver.local_devices(devices), robots)
+  padded = -(-robots // n_dev) * n_dev
+  memory.check_fits(config, padded)
   nothing = "interrupted before the first step; nothing was computed or written"
   interrupts.check(nothing)
-  n_dev = driver.shard_count(robots, driver.local_devices(devices))
-  batch = resolved.batch()
+  batch = resolved.batch(None if padded == robots else
+                         list(range(robots)) + [robots - 1] * (padded - robots))
   chunk_epochs = spec.chunk_epochs or driver.default_chunk_epochs(config)
 
   t0 = time.perf_counter()
@@ -90,7 +95,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   t0 = time.perf_counter()
   compiled = driver.compile_advance(config, chunk_epochs, n_dev, world, batch.params, state)
   t_compile = time.perf_counter() - t0
-  memory.check_compiled(compiled, config, robots, n_dev)
+  memory.check_compiled(compiled, config, padded, n_dev)
   interrupts.check(nothing)
 
   bar = None
@@ -101,8 +106,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
 
   def show(rec, done):
     bar.update(min(rec.done.shape[0], config.max_steps - bar.n))
-    bar.set_postfix(done=f"{int(done.sum())}/{robots}",
-                    coverage=f"{float(rec.coverage[-1].mean()):.3f}")
+    bar.set_postfix(done=f"{int(done[:robots].sum())}/{robots}",
+                    coverage=f"{float(rec.coverage[-1, :robots].mean()):.3f}")
 
   try:
     rollout = driver.drive(compiled, world, batch.params, state, config.max_steps,
@@ -111,6 +116,12 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
     if bar is not None:
       bar.close()
 
+  if padded > robots:
+    own = lambda leaf: leaf[:robots]
+    rollout = dataclasses.replace(
+        rollout, state=jax.tree.map(own, rollout.state),
+        records=None if rollout.records is None else jax.tree.map(lambda leaf: leaf[:, :robots],
+                                                                   rollout.records))
   episodes, curves = results.tables(config, grid, world, rollout.state, rollout.records,
                                     spec.rate_interval)
   episodes.insert(0, "planner", spec.planner)
