@@ -131,6 +131,9 @@ class SimConfig:
       value = getattr(self, name)
       if not isinstance(value, (int, np.integer)) or value < 1:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    if self.path_capacity < 2:
+      raise ConfigError(f"path_capacity must be at least 2 (a path holds the robot's own cell "
+                        f"first, then where it goes), got {self.path_capacity}")
     if self.max_inflation_cells < 0:
       raise ConfigError(f"max_inflation_cells must be >= 0, got {self.max_inflation_cells}")
     for name in ("graph_nodes", "graph_loops", "max_loop_cells", "dijkstra_tiles_after_rounds"):
