@@ -13,6 +13,8 @@ from jaxplore.config import ConfigError, config_for, make_params
 from jaxplore.maps import GridMap
 
 R_ROBOT = 0.25
+# One compiled motion step per config, shared by the tests (the world and parameters traced).
+STEP = jax.jit(sim.step, static_argnums=0)
 
 
 def gap_world():
@@ -42,7 +44,8 @@ def row_4_path_past_a_wall_cell(wall, r_robot):
   path along row 4 (columns 2-18) that its all-free belief let it plan."""
   grid = box_world(12, 20, res=0.2, walls=((wall[0], wall[0] + 1, wall[1], wall[1] + 1),))
   params = make_params(res=0.2, r_robot=r_robot, r_max=0.3, fov=0.1)
-  config = config_for(grid.shape, grid.res, params, max_steps=20, n_beams=4, path_capacity=24)
+  # The config of test_a_robot_two_cells_wide_does_not_enter_a_two_cell_gap: one program.
+  config = config_for(grid.shape, grid.res, params, max_steps=40, n_beams=4, path_capacity=24)
   world = sim.make_world(grid, 0.2, (0.5, 0.9))
   state = on_straight_path_believing_all_free(config, world, params, (0.5, 0.9), 4,
                                               np.arange(2, 19))
@@ -79,7 +82,7 @@ def test_a_robot_never_drives_its_disc_into_a_gap_narrower_than_itself():
   world = sim.make_world(grid, R_ROBOT, (0.55, 1.05))
   state = on_straight_path_believing_all_free(config, world, params, (0.55, 1.05), 10,
                                               np.arange(5, 30))
-  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  step = lambda s: STEP(config, world, params, s)
   occupied_centres = np.argwhere(grid.occupied)[:, ::-1] * 0.1 + 0.05
   for _ in range(30):
     state, _ = step(state)
@@ -134,7 +137,7 @@ def test_a_robot_two_cells_wide_does_not_enter_a_two_cell_gap():
   world = sim.make_world(grid, 0.2, (0.5, 1.1))
   state = on_straight_path_believing_all_free(config, world, params, (0.5, 1.1), 5,
                                               np.arange(2, 19))
-  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  step = lambda s: STEP(config, world, params, s)
   occupied_centres = np.argwhere(grid.occupied)[:, ::-1] * 0.2 + 0.1
   for _ in range(40):
     state, _ = step(state)
@@ -155,7 +158,7 @@ def test_a_robot_stops_before_a_wall_mapped_after_it_planned():
   than drive on beside the wall into cells its planner no longer plans through."""
   config, world, params, state = row_4_path_past_a_wall_cell((3, 10), r_robot=0.2)
   state = state.replace(logodds=state.logodds.at[3, 10].set(params.l_max))
-  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  step = lambda s: STEP(config, world, params, s)
   for _ in range(20):
     state, _ = step(state)
     xy = np.asarray(state.pose[:2])
@@ -240,7 +243,7 @@ def test_a_waypoint_in_a_wall_believed_free_ends_the_path_and_is_learnt():
   chose it again at every plan). Jitted only: 20 eager steps cost ~30 s, and a step eager
   equals a step jitted (tests/test_sim.py::test_step_eager_equals_jit)."""
   config, world, params, state = row_4_path_past_a_wall_cell((4, 10), r_robot=0.05)
-  step = jax.jit(lambda s: sim.step(config, world, params, s))
+  step = lambda s: STEP(config, world, params, s)
   for _ in range(20):
     state, _ = step(state)
   assert int(state.collisions) == 0
