@@ -1,10 +1,12 @@
 """Every registered planner against the planner contract (after jumanji's
 ``check_env_does_not_smoke`` and pgx's API tests): one robot and a vmapped batch, eager and
-jitted; shapes and dtypes of the plan and of the memory; finite outputs; no retrace when a traced
+jitted, per_robot and lockstep; shapes and dtypes of the plan and of the memory; finite outputs; no retrace when a traced
 number changes; a plan is a chain of 8-neighbours over believed-free cells only.
 
 A planner added to the registry is checked here without a line of its own.
 """
+
+import dataclasses
 
 import chex
 import jax
@@ -14,6 +16,7 @@ import pytest
 
 from jaxplore import mapping, posegraph
 from jaxplore.config import make_params
+from jaxplore.graph.dijkstra import batching
 from jaxplore.planners import base, planner_names
 
 H, W, L = 24, 32, 64
@@ -110,6 +113,14 @@ def planner(request):
   return spec, ctx, fn, params, jax.jit(chex.assert_max_traces(fn, n=1))
 
 
+@pytest.fixture(scope="module")
+def batch_plans(planner):
+  """The planner's plans for a vmapped batch of BATCH robots (per_robot), shared by the tests."""
+  spec, ctx, fn, params, _ = planner
+  batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (BATCH,) + jnp.shape(x)), params)
+  return batched, jax.tree.map(np.asarray, jax.jit(jax.vmap(fn))(batched, *inputs(BATCH)))
+
+
 def test_one_robot_eager_and_jitted_agree_and_conform(planner):
   spec, ctx, fn, params, jitted_fn = planner
   eager = jax.tree.map(np.asarray, fn(params, *inputs()))
@@ -119,17 +130,27 @@ def test_one_robot_eager_and_jitted_agree_and_conform(planner):
   chex.assert_trees_all_close(eager, jitted, atol=1e-4, rtol=1e-4)
 
 
-def test_batch_vmapped_conforms_and_equals_one_at_a_time(planner):
+def test_batch_vmapped_conforms_and_equals_one_at_a_time(planner, batch_plans):
   spec, ctx, fn, params, jitted_fn = planner
-  batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (BATCH,) + jnp.shape(x)), params)
   keys, cells, thetas = inputs(BATCH)
-  plans, memories = jax.tree.map(np.asarray, jax.jit(jax.vmap(fn))(batched, keys, cells, thetas))
+  plans, memories = batch_plans[1]
   initial = jax.tree.map(np.asarray, spec.initial_memory(ctx, params))
   for b in range(BATCH):
     plan_b, memory_b = jax.tree.map(lambda x: x[b], (plans, memories))
     check_plan(plan_b, memory_b, initial, belief_logodds())
     alone = jax.tree.map(np.asarray, jitted_fn(params, keys[b], cells[b], thetas[b]))
     chex.assert_trees_all_close((plan_b, memory_b), alone, atol=1e-4, rtol=1e-4)
+
+
+def test_a_batch_plans_the_same_under_both_strategies(planner, batch_plans):
+  """The accelerator's strategy forced on a CPU: ``lockstep`` (shortest paths by relaxation, the
+  planner's lockstep paths) plans a vmapped batch bit for bit as ``per_robot`` does."""
+  spec, ctx, _, _, _ = planner
+  batched, per_robot = batch_plans
+  lockstep_fn = one_plan(spec, dataclasses.replace(ctx, strategy="lockstep"))
+  with batching(None, "relaxation"):
+    lockstep = jax.jit(jax.vmap(lockstep_fn))(batched, *inputs(BATCH))
+  chex.assert_trees_all_equal(jax.tree.map(np.asarray, lockstep), per_robot)
 
 
 def test_changing_a_traced_number_does_not_retrace(planner):
