@@ -95,7 +95,6 @@ def main(argv=None):
   import matplotlib
   matplotlib.use("Agg")
   import matplotlib.pyplot as plt
-  import numpy as np
   import pandas as pd
 
   import jaxplore

@@ -63,7 +63,7 @@ PAPER = {
 }
 
 
-def explored_fraction(grid, logodds, params) -> "np.ndarray":
+def explored_fraction(grid, logodds, params):
   """Per robot: reachable cells whose belief is free or occupied (not unknown)."""
   import numpy as np
 
@@ -124,7 +124,6 @@ def fmt(s) -> str:
 
 
 def tables(episodes) -> str:
-  import numpy as np
   lines = []
   for map_label, group in episodes.groupby("map", sort=False):
     lines += [f"### {map_label}", "",

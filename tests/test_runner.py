@@ -1,7 +1,6 @@
 """``jaxplore.run`` and the ``jaxplore`` command: outputs, reproducibility, clear errors on bad input."""
 
 import json
-import math
 
 import numpy as np
 import pandas as pd

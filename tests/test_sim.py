@@ -176,7 +176,6 @@ def test_li2020_plans_alike_in_both_strategies(rooms):
 # planner's weights alone are checked by tests/planners/test_conformance.py.
 @pytest.mark.parametrize("planner", ["li2020"])
 def test_changing_a_traced_parameter_does_not_retrace(rooms, planner):
-  import dataclasses
   from jaxplore.planners import get_planner
   grid = rooms
   weights = get_planner(planner).defaults

@@ -63,7 +63,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import mapping, motion, posegraph
+from jaxplore import motion, posegraph
 from jaxplore.config import ConfigError
 from jaxplore.graph import labels
 from jaxplore.graph.dijkstra import extract_path

@@ -85,7 +85,6 @@ Decisions (the paper is silent; see also the module's settings):
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import chex

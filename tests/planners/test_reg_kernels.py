@@ -3,7 +3,6 @@ circular runs, Monte-Carlo sampling of the coverable width and a loop over the L
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from conftest import EAGER_AND_JIT
