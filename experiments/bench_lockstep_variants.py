@@ -17,6 +17,12 @@ later GPU can check the win:
   every robot needing a plan (``planning.LOCKSTEP_SMALL_CHUNKS``). li2020 plans only when its
   path is done (1 robot of 64 at a typical step on ``lab``): chunks by need ran 1.5-1.6x the
   robot-steps/s on ``lab``, at twice the compile time. Bit for bit.
+- ``coarse_ladder``: the chunks by need only 4 and 16 below the round's own chunk
+  (``planning.lockstep_plan_chunk``: 128 at 1,024 robots, 512 at 4,096), as before the ladder
+  of factor 4 (4, 16, 64, 256, ...). li2020 on ``lab`` needs ~8-28 plans at a step of 1,024
+  robots, ~30-110 of 4,096: the coarse ladder plans them in the round's chunk. Forced lockstep
+  on a 2-core CPU (one host device, 1,024 robots, steps 17-32): 358 -> 471 robot-steps/s with
+  the ladder, at 22.5 -> 28.6 s compile; not yet timed on a GPU. Bit for bit.
 
 Candidates still open or dropped:
 
@@ -70,6 +76,7 @@ VARIANTS = {  # name: (engine functions replaced, XLA flags added)
     "head": ((), ""),
     "tile_loop": (("tile_loop",), ""),
     "fixed_chunks": (("fixed_chunks",), ""),
+    "coarse_ladder": (("coarse_ladder",), ""),
     "leftovers_by_need": (("leftovers_by_need",), ""),
     "obs32": (("obs32",), ""),
     "chunk16": (("chunk16",), ""),
@@ -111,6 +118,8 @@ def _patch(variant: str) -> None:
         lambda *args, whole_grid=False, **kwargs: integrate(*args, whole_grid=False, **kwargs))
   if "fixed_chunks" in patches:
     planning.LOCKSTEP_SMALL_CHUNKS = ()
+  if "coarse_ladder" in patches:
+    planning.LOCKSTEP_SMALL_CHUNKS = (4, 16)
   if "leftovers_by_need" in patches:
     planning._plan_where_needed_lockstep = functools.partial(
         _plan_where_needed_leftovers_by_need, planning._plan_where_needed_lockstep)

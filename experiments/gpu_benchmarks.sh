@@ -11,6 +11,10 @@
 #                                                     # 5.0x at 64 / 256 / 1,024: its target may
 #                                                     # be a question of batch; skipped if the
 #                                                     # 1,024 row projects over 60 s)
+#   bash experiments/gpu_benchmarks.sh ladder OUT     # ~4 min (never run yet): lab li2020 at
+#                                                     # 1,024 robots, the chunks-by-need ladder
+#                                                     # of factor 4 against the old 4 and 16
+#                                                     # only (coarse_ladder): 1.32x on a CPU
 #   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~7 min (never run yet): li2020 is short
 #                                                     # of its target; where its plan's time
 #                                                     # goes, part by part, and the candidate
@@ -28,11 +32,14 @@
 # OUT defaults to experiments/results. Each part is a few command lines below; run them by hand
 # with other batch sizes as the budget allows.
 set -euo pipefail
-part=${1:?"which part: table, variants, li2020, lab or stages"}
+part=${1:?"which part: table, ladder, variants, li2020, lab or stages"}
 out=${2:-experiments/results}
 mkdir -p "$out"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
 case "$part" in
+  ladder)
+    python experiments/bench_lockstep_variants.py --setting lab --robots 1024 --steps 32 \
+      --chunk-steps 16 --variants coarse_ladder --out "$out/bench_lockstep_ladder_gpu.md" ;;
   variants)
     python experiments/bench_lockstep_variants.py --setting office --robots 1024,4096 \
       --out "$out/bench_lockstep_variants_gpu.md" ;;
@@ -62,5 +69,5 @@ case "$part" in
       --robots 64,256,1024,4096 --steps 32 --chunk-steps 16 --budget-s 60 \
       --out "$out/bench_lab_gpu.md" ;;
   *)
-    echo "unknown part $part: table, variants, li2020, lab or stages" >&2; exit 2 ;;
+    echo "unknown part $part: table, ladder, variants, li2020, lab or stages" >&2; exit 2 ;;
 esac

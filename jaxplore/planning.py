@@ -273,8 +273,10 @@ def lockstep_plan_chunk(config: SimConfig, batch: int) -> int:
 
 
 # Smaller chunks a lockstep round without a window takes instead of its own when one of them
-# holds every robot that needs a plan (:func:`_plan_robots_by_need`).
-LOCKSTEP_SMALL_CHUNKS = (4, 16)
+# holds every robot that needs a plan (:func:`_plan_robots_by_need`): a ladder of factor 4, so
+# a round pays for at most 4 times the rows it needs. (li2020 on lab, 256 robots: 2-7 of them
+# need a plan at a typical step, so ~30-110 of 4,096, whose own chunk is 512.)
+LOCKSTEP_SMALL_CHUNKS = (4, 16, 64, 256, 1024, 4096)
 
 
 def _plan_robots_by_need(config: SimConfig, world: World, params: Params, state: State, need,
@@ -282,12 +284,13 @@ def _plan_robots_by_need(config: SimConfig, world: World, params: Params, state:
   """:func:`_plan_robots` on the whole grid in the smallest of :data:`LOCKSTEP_SMALL_CHUNKS`
   that holds every robot with ``need`` set, else in chunks of ``chunk`` as before.
 
-  A planner that replans only when its path is done (li2020) has a robot or two of a batch
+  A planner that replans only when its path is done (li2020) has a robot or two of 64
   planning at a typical step, and a chunk pays for all its rows, copies included. The planner is
   compiled once per size (``lax.switch``); each call is never larger, nor are there more of them.
-  On one H100 (``lab``, li2020, 64 and 256 robots) 1.5-1.6x the robot-steps/s of fixed chunks,
-  at twice the compile time (``experiments/results/bench_lockstep_variants_gpu.md``). A chunk's
-  size never changes a plan, so the results are the same bit for bit.
+  On one H100 (``lab``, li2020, 64 and 256 robots, sizes 4 and 16 below the round's 64) 1.5-1.6x
+  the robot-steps/s of fixed chunks, at twice the compile time
+  (``experiments/results/bench_lockstep_variants_gpu.md``). A chunk's size never changes a
+  plan, so the results are the same bit for bit.
   """
   chunk = min(chunk, need.shape[0])
   sizes = sorted({size for size in LOCKSTEP_SMALL_CHUNKS if size < chunk} | {chunk})

@@ -20,7 +20,8 @@ import bench_lockstep_variants as variants  # noqa: E402
 
 def test_the_variants_undo_what_landed(monkeypatch):
   """``tile_loop`` brings the belief update's loop over tiles back under the lockstep strategy,
-  ``fixed_chunks`` the planning chunks that ignore how many robots need a plan."""
+  ``coarse_ladder`` only chunks of 4 and 16 below a round's own, ``fixed_chunks`` the planning
+  chunks that ignore how many robots need a plan."""
   from jaxplore import planning
   monkeypatch.setattr(mapping, "integrate_observation", mapping.integrate_observation)
   monkeypatch.setattr(planning, "LOCKSTEP_SMALL_CHUNKS", planning.LOCKSTEP_SMALL_CHUNKS)
@@ -31,7 +32,9 @@ def test_the_variants_undo_what_landed(monkeypatch):
   assert loops() == 0
   variants._patch("tile_loop")
   assert loops() == 1
-  assert planning.LOCKSTEP_SMALL_CHUNKS
+  assert len(planning.LOCKSTEP_SMALL_CHUNKS) > 2
+  variants._patch("coarse_ladder")
+  assert planning.LOCKSTEP_SMALL_CHUNKS == (4, 16)
   variants._patch("fixed_chunks")
   assert planning.LOCKSTEP_SMALL_CHUNKS == ()
 

@@ -142,7 +142,8 @@ def test_nearest_frontier_does_not_follow_a_notch_deeper_into_the_inflated_zone(
 
 @pytest.mark.parametrize(("batch", "chunk", "needing", "size"), [
     (6, 6, 0, 4), (6, 6, 1, 4), (6, 6, 4, 4), (6, 6, 5, 6), (3, 64, 3, 3), (64, 64, 16, 16),
-    (64, 64, 17, 64), (300, 75, 16, 16), (300, 75, 40, 75)])
+    (64, 64, 17, 64), (300, 75, 16, 16), (300, 75, 40, 64), (300, 75, 65, 75),
+    (1024, 128, 20, 64), (4096, 512, 100, 256), (4096, 512, 257, 512)])
 def test_lockstep_chunks_by_need_are_the_smallest_that_holds_every_robot_that_needs_a_plan(
     monkeypatch, batch, chunk, needing, size):
   """Which chunk size ``_plan_robots_by_need`` plans in (``_plan_robots`` replaced by a stand-in
