@@ -1,10 +1,11 @@
 """Benchmark: candidate changes to the lockstep strategy, A/B against the engine as it is.
 
 Each candidate replaces one engine function, in a child process of its own, for a run forced to
-the ``lockstep`` strategy (or adds XLA flags to it); nothing in the package changes until a
-candidate has won on a GPU. Two candidates won on one H100 and are now the engine
-(``experiments/results/bench_lockstep_variants_gpu.md``); their variants here undo them, so a
-later GPU can check the win:
+the ``lockstep`` strategy (or adds XLA flags to it). Two candidates won on one H100 and are now
+the engine (``experiments/results/bench_lockstep_variants_gpu.md``: ``tile_loop``,
+``fixed_chunks``); two more landed on a CPU's evidence alone (lockstep forced: they can only
+shrink what a round computes, and are bit for bit: ``coarse_ladder``, ``fixed_leftovers``).
+Their variants here undo them, so a GPU can check the win:
 
 - ``tile_loop``: ``mapping.integrate_observation`` as a loop over the observed tiles (the
   ``per_robot`` update) instead of the whole grid at once. On a GPU a loop step is a chain of
@@ -23,6 +24,12 @@ later GPU can check the win:
   robots, ~30-110 of 4,096: the coarse ladder plans them in the round's chunk. Forced lockstep
   on a 2-core CPU (one host device, 1,024 robots, steps 17-32): 358 -> 471 robot-steps/s with
   the ladder, at 22.5 -> 28.6 s compile; not yet timed on a GPU. Bit for bit.
+- ``fixed_leftovers``: the whole-grid round after a windowed one (the few plans the window
+  could not certify: nearest frontier on ``office``) always in chunks of 64, as before it took
+  the smallest chunk by need as the planners without a window do. Lockstep forced on a 2-core
+  CPU (office, 1,024 robots, 64 steps, one device): 1,797 robot-steps/s by need against 1,247
+  and 1,276 (head before it, alternated), compile 13.6 s against 8.3-8.7; not yet timed on a
+  GPU. Bit for bit.
 
 Candidates still open or dropped:
 
@@ -32,10 +39,6 @@ Candidates still open or dropped:
 - ``chunk16``, ``chunk4``: the lockstep planning chunk at least 16 or 4 robots instead of
   ``planning.LOCKSTEP_PLAN_CHUNK`` = 64 (windowed rounds included). Bit for bit (a chunk's size
   never changes a plan). ``chunk4`` on ``lab``: 0.99x (64 robots), 1.13x (256).
-- ``leftovers_by_need``: the whole-grid round after a windowed one (the few plans the window
-  could not certify: nearest frontier on ``office``) in a chunk of 4 or 16 when that holds
-  them all, as the planners without a window now do, instead of chunks of 64. Bit for bit; not
-  yet timed on a GPU.
 - ``visible_by_depth``: li2020's visible gains with the tree of sight lines walked a whole
   depth at a time (``experiments/visible_by_depth.py``): 185 loop steps for ``lab``'s R_e of
   57 cells instead of ~1,950, each a few gathers over [64, H, W]. The gains are the package's
@@ -77,7 +80,7 @@ VARIANTS = {  # name: (engine functions replaced, XLA flags added)
     "tile_loop": (("tile_loop",), ""),
     "fixed_chunks": (("fixed_chunks",), ""),
     "coarse_ladder": (("coarse_ladder",), ""),
-    "leftovers_by_need": (("leftovers_by_need",), ""),
+    "fixed_leftovers": (("fixed_leftovers",), ""),
     "obs32": (("obs32",), ""),
     "chunk16": (("chunk16",), ""),
     "chunk4": (("chunk4",), ""),
@@ -93,7 +96,7 @@ def _parse_args(argv=None):
   add = parser.add_argument
   add("--setting", default="office", help="a setting of bench_accelerator.py")
   add("--robots", default="1024,4096", help="comma separated batch sizes")
-  add("--variants", default="tile_loop,leftovers_by_need",
+  add("--variants", default="tile_loop,fixed_leftovers",
       help=f"comma separated, of {', '.join(list(VARIANTS)[1:])}")
   add("--steps", type=int, default=96)
   add("--chunk-steps", type=int, default=32)
@@ -120,9 +123,9 @@ def _patch(variant: str) -> None:
     planning.LOCKSTEP_SMALL_CHUNKS = ()
   if "coarse_ladder" in patches:
     planning.LOCKSTEP_SMALL_CHUNKS = (4, 16)
-  if "leftovers_by_need" in patches:
+  if "fixed_leftovers" in patches:
     planning._plan_where_needed_lockstep = functools.partial(
-        _plan_where_needed_leftovers_by_need, planning._plan_where_needed_lockstep)
+        _plan_where_needed_fixed_leftovers, planning._plan_where_needed_lockstep)
   if "obs32" in patches:
     empty = sensor.empty_observation
     sensor.empty_observation = lambda shape: empty(shape).astype(jnp.int32)
@@ -136,9 +139,9 @@ def _patch(variant: str) -> None:
         lambda gains, occupied, radius, block=1: visible_gains_by_depth(gains, occupied, radius))
 
 
-def _plan_where_needed_leftovers_by_need(engine, config, world, params, state):
+def _plan_where_needed_fixed_leftovers(engine, config, world, params, state):
   """``engine`` (``planning._plan_where_needed_lockstep``) with its whole-grid round after the
-  window in chunks by need (``planning._plan_robots_by_need``)."""
+  window in fixed chunks of ``planning.LOCKSTEP_PLAN_CHUNK``, not by need."""
   from jaxplore import planning
   from jaxplore.graph import batching
 
@@ -150,8 +153,8 @@ def _plan_where_needed_leftovers_by_need(engine, config, world, params, state):
     state, certified = planning._plan_robots(config, world, params, state, need,
                                              config.plan_window,
                                              planning.lockstep_plan_chunk(config, batch))
-    return planning._plan_robots_by_need(config, world, params, state, need & ~certified,
-                                         min(batch, planning.LOCKSTEP_PLAN_CHUNK))[0]
+    return planning._plan_robots(config, world, params, state, need & ~certified, 0,
+                                 min(batch, planning.LOCKSTEP_PLAN_CHUNK))[0]
 
 
 def child(args) -> None:

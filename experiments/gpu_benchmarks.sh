@@ -24,7 +24,8 @@
 #                                                     # lab part runs it at 256)
 #   bash experiments/gpu_benchmarks.sh variants OUT   # ~4 min: office 1,024 / 4,096 robots, the
 #                                                     # landed whole-grid update undone, and
-#                                                     # leftovers_by_need, against head
+#                                                     # the whole-grid leftovers by need undone
+#                                                     # (fixed_leftovers), against head
 #   bash experiments/gpu_benchmarks.sh lab OUT        # ~7 min: lab li2020 64 / 256, the landed
 #                                                     # changes undone, visible_by_depth
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep

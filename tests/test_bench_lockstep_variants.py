@@ -21,7 +21,8 @@ import bench_lockstep_variants as variants  # noqa: E402
 def test_the_variants_undo_what_landed(monkeypatch):
   """``tile_loop`` brings the belief update's loop over tiles back under the lockstep strategy,
   ``coarse_ladder`` only chunks of 4 and 16 below a round's own, ``fixed_chunks`` the planning
-  chunks that ignore how many robots need a plan."""
+  chunks that ignore how many robots need a plan, ``fixed_leftovers`` them for the whole-grid
+  round after a window."""
   from jaxplore import planning
   monkeypatch.setattr(mapping, "integrate_observation", mapping.integrate_observation)
   monkeypatch.setattr(planning, "LOCKSTEP_SMALL_CHUNKS", planning.LOCKSTEP_SMALL_CHUNKS)
@@ -37,6 +38,11 @@ def test_the_variants_undo_what_landed(monkeypatch):
   assert planning.LOCKSTEP_SMALL_CHUNKS == (4, 16)
   variants._patch("fixed_chunks")
   assert planning.LOCKSTEP_SMALL_CHUNKS == ()
+  monkeypatch.setattr(planning, "_plan_where_needed_lockstep", planning._plan_where_needed_lockstep)
+  engine = planning._plan_where_needed_lockstep
+  variants._patch("fixed_leftovers")
+  assert planning._plan_where_needed_lockstep.func is variants._plan_where_needed_fixed_leftovers
+  assert planning._plan_where_needed_lockstep.args == (engine,)
 
 
 def test_compare_tells_bit_for_bit_from_a_changed_leaf(tmp_path):
