@@ -461,7 +461,8 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     return obstacle_ & jnp.vectorize(lambda x: K.shadow_bins(x, jump), signature="(b)->(b)")(rho_)
 
   if belief_arcs:
-    near_frontier = K.dilate(view.frontier, int(round(s.arc_reach / res)))
+    # At least one cell: a ray that stops on unknown space ends beside the frontier cell, not on it.
+    near_frontier = K.dilate(view.frontier, max(1, int(round(s.arc_reach / res))))
     leads_on = lambda ends: near_frontier[_cell(ends, height, width)[..., 0],
                                           _cell(ends, height, width)[..., 1]]
   else:

@@ -109,6 +109,16 @@ def test_ereg_is_deterministic(episodes, name):
   assert not np.array_equal(state_0.key, state_1.key)
 
 
+def test_arcs_into_unknown_space_stay_open_on_cells_coarser_than_arc_reach():
+  """At 1 m cells ``arc_reach`` (0.5 m) rounded to 0 cells: an arc counted as leading on only
+  if its ray's end cell was itself a frontier cell, never true for a ray that stops on unknown
+  space (it ends beside the frontier cell), so nodes closed early and REG gave up at 48 % and
+  80 % coverage on ``open`` (nearest frontier completes it). At least one cell now."""
+  result = runner.run(world="open", res=1.0, planner="reg", robots=2, max_steps=200,
+                      progress=False, quiet=True, devices=1)
+  assert (result.episodes.coverage >= 0.85).all(), result.episodes[["reason", "coverage"]]
+
+
 def arc_inputs():
   """A node in the open with three frontier arcs of different widths."""
   bins = 120
