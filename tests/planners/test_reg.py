@@ -109,14 +109,18 @@ def test_ereg_is_deterministic(episodes, name):
   assert not np.array_equal(state_0.key, state_1.key)
 
 
-def test_arcs_into_unknown_space_stay_open_on_cells_coarser_than_arc_reach():
-  """At 1 m cells ``arc_reach`` (0.5 m) rounded to 0 cells: an arc counted as leading on only
-  if its ray's end cell was itself a frontier cell, never true for a ray that stops on unknown
-  space (it ends beside the frontier cell), so nodes closed early and REG gave up at 48 % and
-  80 % coverage on ``open`` (nearest frontier completes it). At least one cell now."""
-  result = runner.run(world="open", res=1.0, planner="reg", robots=2, max_steps=200,
-                      progress=False, quiet=True, devices=1)
-  assert (result.episodes.coverage >= 0.85).all(), result.episodes[["reason", "coverage"]]
+def test_a_lidar_longer_than_the_lsr_radius_is_refused_with_belief_arcs():
+  """Toriz & Sánchez's R is the sensor range. With the li2020 preset's 15 m lidar and R = 4 m,
+  every arc within R ends in space the scans have already seen and belief_arcs closes it: ereg
+  stopped at 12-80 % of lab. Refused before compute, naming the numbers and the ways out, each
+  of which resolves."""
+  with pytest.raises(ConfigError, match=r"r_max = 15 m is longer than the LSR radius R = 4 m"):
+    runner.prepare(world="open", res=0.5, planner="ereg", robots=2)
+  runner.prepare(world="open", res=0.5, planner="ereg", robots=2, preset="toriz")
+  runner.prepare(world="open", res=0.5, planner="ereg", robots=2,
+                 planner_params={"belief_arcs": False})
+  runner.prepare(world="open", res=0.5, planner="ereg", robots=2,
+                 planner_params={"R": 15.0, "max_radius": 15.0})
 
 
 def arc_inputs():
