@@ -116,12 +116,10 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
     if bar is not None:
       bar.close()
 
-  if padded > robots:
-    own = lambda leaf: leaf[:robots]
+  if padded > robots:  # the copies' results go (records are [T, B])
     rollout = dataclasses.replace(
-        rollout, state=jax.tree.map(own, rollout.state),
-        records=None if rollout.records is None else jax.tree.map(lambda leaf: leaf[:, :robots],
-                                                                   rollout.records))
+        rollout, state=jax.tree.map(lambda leaf: leaf[:robots], rollout.state),
+        records=jax.tree.map(lambda leaf: leaf[:, :robots], rollout.records))
   episodes, curves = results.tables(config, grid, world, rollout.state, rollout.records,
                                     spec.rate_interval)
   episodes.insert(0, "planner", spec.planner)

@@ -1,5 +1,6 @@
 """Shared test setup: silent rank promotion is an error (STYLE.md practice 12); tiny worlds."""
 
+import os
 from pathlib import Path
 
 import jax
@@ -7,6 +8,20 @@ import numpy as np
 import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+# The checkout a test's subprocess runs from (the package it imports is this one).
+REPO = Path(__file__).resolve().parents[1]
+
+
+def subprocess_env(drop=("XLA_FLAGS",), **extra):
+  """The environment of a test's Python subprocess: this one's without the variables whose names
+  start with ``drop`` (the parent's XLA flags are not the child's), the checkout first on
+  ``PYTHONPATH``, then ``extra``."""
+  env = {k: v for k, v in os.environ.items() if not k.startswith(tuple(drop))}
+  env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+  env.update(extra)
+  return env
+
 
 SHARED_MAPS = (Path(__file__).resolve().parents[1].parent / "shared" / "maps").resolve()
 # The public maps are read from beside the checkout and never copied into the project; a checkout

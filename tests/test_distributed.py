@@ -6,21 +6,18 @@ compared bit for bit. The processes share a persistent compilation cache and com
 XLA's backend optimisations: the first run compiles, the others load (a 20 x 20 world, 20 steps).
 """
 
-import os
 import signal
 import socket
 import subprocess
 import sys
 import textwrap
 import time
-from pathlib import Path
 
 import pandas as pd
 import pytest
 
-import jaxplore
+from conftest import REPO, subprocess_env
 
-REPO = Path(jaxplore.__file__).resolve().parents[1]
 # Four rows (two sensor ranges x two seeds), one per chunk: process 0 runs chunks 0 and 2,
 # process 1 chunks 1 and 3. Every row differs, so a row written under another's name shows.
 SWEEP = ["sweep", "--world", "open", "--res", "1.0", "--planner", "nearest_frontier",
@@ -50,12 +47,10 @@ DIES_IN_SECOND_CHUNK = textwrap.dedent("""
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
   cache = tmp_path_factory.mktemp("jax_cache")
-  env = {k: v for k, v in os.environ.items() if not k.startswith(("XLA_", "JAX_"))}
-  env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-  env.update(XLA_FLAGS="--xla_backend_optimization_level=0", JAX_PLATFORMS="cpu",
-             JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-             JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
-  return env
+  return subprocess_env(
+      drop=("XLA_", "JAX_"), XLA_FLAGS="--xla_backend_optimization_level=0", JAX_PLATFORMS="cpu",
+      JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+      JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
 
 
 @pytest.fixture(scope="module")

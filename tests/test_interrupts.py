@@ -7,15 +7,13 @@ import signal
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import pytest
 
-import jaxplore
 from jaxplore import driver, interrupts
 from tests.test_driver import chunks, start
+from conftest import REPO, subprocess_env
 
-REPO = Path(jaxplore.__file__).resolve().parents[1]
 
 
 def test_sigint_within_deferred_sets_a_flag_and_check_raises_there():
@@ -70,8 +68,7 @@ PRESSED_IN_COMPILE = textwrap.dedent("""
 
 def test_ctrl_c_while_compiling_exits_130_and_writes_nothing(tmp_path):
   out = tmp_path / "run"
-  env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-  env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+  env = subprocess_env()
   proc = subprocess.run(
       [sys.executable, "-c", PRESSED_IN_COMPILE, "run", "--world", "open", "--res", "0.5",
        "--robots", "1", "--max-steps", "20", "--set", "r_max=2", "--devices", "1",

@@ -194,8 +194,8 @@ def test_a_batch_that_does_not_divide_over_the_devices_is_padded_not_run_on_fewe
   tests/test_sweep.py::test_sharded_sweep_equals_unsharded_bit_for_bit)."""
   import subprocess
   import sys
-  from test_sweep import REPO, _subprocess_env
+  from conftest import REPO, subprocess_env
   done = subprocess.run([sys.executable, "-c", PADDED], cwd=REPO, capture_output=True,
-                        env=_subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+                        env=subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
                         timeout=300)
   assert done.returncode == 0, done.stderr.decode()[-3000:]

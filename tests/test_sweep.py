@@ -14,7 +14,6 @@ import subprocess
 import sys
 import textwrap
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -27,8 +26,8 @@ from jaxplore.resolve import resolve
 from jaxplore.runspec import RunSpec
 from jaxplore.sweeps import execute, schedule, settings
 from jaxplore.config import ConfigError
+from conftest import REPO, subprocess_env
 
-REPO = Path(jaxplore.__file__).resolve().parents[1]
 RUNSPEC_FIELDS = {f.name for f in dataclasses.fields(RunSpec)}
 SETTINGS = dict(world="open", res=0.5, planner="li2020", max_steps=30, replan_every=5,
                 params={"r_max": 2.0}, progress=False, quiet=True, devices=1)
@@ -39,13 +38,6 @@ GRID = {"fov": [3.0, 6.0], "k1": [0.0, 0.3]}
 CLI_ARGS = ["sweep", "--world", "open", "--res", "0.5", "--planner", "li2020", "--max-steps", "30",
             "--replan-every", "5", "--set", "r_max=2", "--grid", "fov=3,6", "k1=0,0.3",
             "--seeds", "2", "--chunk-size", "3", "--devices", "1", "--no-progress", "--quiet"]
-
-
-def _subprocess_env(**extra):
-  env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-  env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-  env.update(extra)
-  return env
 
 
 @pytest.fixture(scope="module")
@@ -202,7 +194,7 @@ def test_kill_9_then_resume_gives_the_uninterrupted_table(reference, tmp_path):
   _, ref_out, _ = reference
   out = tmp_path / "killed"
   proc = subprocess.Popen([sys.executable, "-c", KILLABLE, *CLI_ARGS, "--out", str(out)],
-                          cwd=REPO, env=_subprocess_env(), stdout=subprocess.PIPE,
+                          cwd=REPO, env=subprocess_env(), stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT)
   first_chunk = out / "chunks" / "chunk_00000.parquet"
   deadline = time.monotonic() + 240
@@ -240,7 +232,7 @@ def test_sharded_sweep_equals_unsharded_bit_for_bit(reference, tmp_path):
   rows land in different chunks, positions and devices, and every number is identical."""
   _, ref_out, _ = reference
   done = subprocess.run([sys.executable, "-c", SHARDED, str(tmp_path)], cwd=REPO, capture_output=True,
-                        env=_subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+                        env=subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
                         timeout=300)
   assert done.returncode == 0, done.stderr.decode()[-3000:]
   for mine, theirs in zip(_tables(tmp_path), _tables(ref_out)):
