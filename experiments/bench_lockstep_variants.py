@@ -23,13 +23,15 @@ Their variants here undo them, so a GPU can check the win:
   of factor 4 (4, 16, 64, 256, ...). li2020 on ``lab`` needs ~8-28 plans at a step of 1,024
   robots, ~30-110 of 4,096: the coarse ladder plans them in the round's chunk. Forced lockstep
   on a 2-core CPU (one host device, 1,024 robots, steps 17-32): 358 -> 471 robot-steps/s with
-  the ladder, at 22.5 -> 28.6 s compile; not yet timed on a GPU. Bit for bit.
+  the ladder, at 22.5 -> 28.6 s compile. On one H100 (1,024 robots) no gain: 5,151 coarse
+  against 4,975 / 5,083 with the ladder, compile 42 s against 54-60 s; not timed at 4,096,
+  where it may differ (``gpu_benchmarks.sh ladder``). Bit for bit.
 - ``fixed_leftovers``: the whole-grid round after a windowed one (the few plans the window
   could not certify: nearest frontier on ``office``) always in chunks of 64, as before it took
   the smallest chunk by need as the planners without a window do. Lockstep forced on a 2-core
   CPU (office, 1,024 robots, 64 steps, one device): 1,797 robot-steps/s by need against 1,247
-  and 1,276 (head before it, alternated), compile 13.6 s against 8.3-8.7; not yet timed on a
-  GPU. Bit for bit.
+  and 1,276 (head before it, alternated), compile 13.6 s against 8.3-8.7. On one H100 (4,096
+  robots) 169,404 against 179,293 / 165,256 for head: within the drift. Bit for bit.
 
 Candidates still open or dropped:
 

@@ -2,22 +2,23 @@
 # The open GPU measurements, in the order they matter, each writing its results file as its rows
 # finish (a run cut short keeps what it measured). On one H100/H200 through the device tool:
 #
-#   bash experiments/gpu_benchmarks.sh table OUT EB   # ~7-9 min: the README table (EB: a folder
-#                                                     # holding room.yaml and room.pgm); the
-#                                                     # table predates the whole-grid belief
-#                                                     # update and li2020's chunks by need.
-#                                                     # lab now tries 4,096 robots too (li2020's
-#                                                     # rate rose with the batch, 1.6x / 3.4x /
-#                                                     # 5.0x at 64 / 256 / 1,024: its target may
-#                                                     # be a question of batch; skipped if the
-#                                                     # 1,024 row projects over 60 s)
-#   bash experiments/gpu_benchmarks.sh ladder OUT     # ~4 min (never run yet): lab li2020 at
-#                                                     # 1,024 robots, the chunks-by-need ladder
-#                                                     # of factor 4 against the old 4 and 16
-#                                                     # only (coarse_ladder): 1.32x on a CPU
-#   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~7 min (never run yet): li2020 is short
-#                                                     # of its target; where its plan's time
-#                                                     # goes, part by part, and the candidate
+#   bash experiments/gpu_benchmarks.sh ladder OUT     # ~5 min: lab li2020 at 4,096 robots, the
+#                                                     # chunks-by-need ladder of factor 4
+#                                                     # against 4 and 16 only (coarse_ladder):
+#                                                     # 1.32x on a CPU, no gain on an H100 at
+#                                                     # 1,024 robots and 12-18 s more compile
+#                                                     # (2026-11-27): take it back if 4,096
+#                                                     # gains nothing either
+#   bash experiments/gpu_benchmarks.sh table OUT EB   # ~9-10 min: the README table (EB: a folder
+#                                                     # holding room.yaml and room.pgm); its
+#                                                     # office and room rows predate the
+#                                                     # whole-grid belief update (lab's rows were
+#                                                     # rerun 2026-11-27, bench_lab_li2020_gpu.md;
+#                                                     # its compile is 43-74 s a batch size)
+#   bash experiments/gpu_benchmarks.sh li2020 OUT     # ~7 min (never run yet): after its first
+#                                                     # plans li2020 runs 9-10x the CPU at 4,096
+#                                                     # robots, 4x at 1,024; where a plan's time
+#                                                     # goes on a GPU, part by part, and the candidate
 #                                                     # visible gains a depth at a time (185
 #                                                     # loop steps, not ~1,950) alone and in
 #                                                     # whole runs on lab (64 robots; the
@@ -25,7 +26,8 @@
 #   bash experiments/gpu_benchmarks.sh variants OUT   # ~4 min: office 1,024 / 4,096 robots, the
 #                                                     # landed whole-grid update undone, and
 #                                                     # the whole-grid leftovers by need undone
-#                                                     # (fixed_leftovers), against head
+#                                                     # (fixed_leftovers: within the drift at
+#                                                     # 4,096 on an H100), against head
 #   bash experiments/gpu_benchmarks.sh lab OUT        # ~7 min: lab li2020 64 / 256, the landed
 #                                                     # changes undone, visible_by_depth
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
@@ -39,7 +41,7 @@ mkdir -p "$out"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
 case "$part" in
   ladder)
-    python experiments/bench_lockstep_variants.py --setting lab --robots 1024 --steps 32 \
+    python experiments/bench_lockstep_variants.py --setting lab --robots 4096 --steps 32 \
       --chunk-steps 16 --variants coarse_ladder --out "$out/bench_lockstep_ladder_gpu.md" ;;
   variants)
     python experiments/bench_lockstep_variants.py --setting office --robots 1024,4096 \

@@ -275,7 +275,10 @@ def lockstep_plan_chunk(config: SimConfig, batch: int) -> int:
 # Smaller chunks a lockstep round without a window takes instead of its own when one of them
 # holds every robot that needs a plan (:func:`_plan_robots_by_need`): a ladder of factor 4, so
 # a round pays for at most 4 times the rows it needs. (li2020 on lab, 256 robots: 2-7 of them
-# need a plan at a typical step, so ~30-110 of 4,096, whose own chunk is 512.)
+# need a plan at a typical step, so ~30-110 of 4,096, whose own chunk is 512.) 1.32x on a CPU
+# with lockstep forced; on one H100 at 1,024 robots no faster than 4 and 16 alone (a round is
+# latency-bound there) and 12-18 s more compile; not timed there at 4,096
+# (experiments/results/bench_lockstep_variants_gpu.md).
 LOCKSTEP_SMALL_CHUNKS = (4, 16, 64, 256, 1024, 4096)
 
 
@@ -314,7 +317,8 @@ def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params,
   for the few plans the window could not certify, takes chunks of :data:`LOCKSTEP_PLAN_CHUNK`,
   or a smaller chunk when one holds them all (:func:`_plan_robots_by_need`): a whole-grid solve
   costs per row (office, nearest frontier, 1,024 robots, lockstep forced on a 2-core CPU:
-  1.41-1.44x the robot-steps/s of chunks of 64; not yet timed on a GPU). A planner without a
+  1.41-1.44x the robot-steps/s of chunks of 64; on one H100 at 4,096 robots no difference
+  beyond the run-to-run drift of 8 %). A planner without a
   window plans on the whole grid in the window round's chunks, or in a smaller one by need
   likewise. The results are :func:`plan_where_needed`'s."""
   need = needs_plan(config, state)
