@@ -1,4 +1,5 @@
-"""The ``jaxplore`` command: ``run``, ``sweep``, ``maps``, ``plot``.
+"""The ``jaxplore`` command (also ``python -m jaxplore``): ``run``, ``sweep``, ``maps``, ``plot``,
+``animate``.
 
 A thin argparse layer over :func:`jaxplore.runner.run` and friends: ``run`` and ``sweep`` take the
 same run settings (:class:`jaxplore.runspec.RunSpec`, whose defaults they show). JAX computes

@@ -118,6 +118,22 @@ def test_cli_run_and_maps(tmp_path, capsys):
   assert cli.main(["plot", str(out)]) == 0
 
 
+def test_python_dash_m_runs_the_command():
+  """``python -m jaxplore`` is the ``jaxplore`` command (for an environment whose scripts folder
+  is not on the PATH): its exit code and output, here the world list and a refusal."""
+  import subprocess
+  import sys
+  from conftest import REPO, subprocess_env
+  listed = subprocess.run([sys.executable, "-m", "jaxplore", "maps"], cwd=REPO, capture_output=True,
+                          env=subprocess_env(), timeout=120, text=True)
+  assert listed.returncode == 0, listed.stderr[-2000:]
+  assert "office" in listed.stdout and "lab" in listed.stdout
+  refused = subprocess.run([sys.executable, "-m", "jaxplore", "run", "--world", "atlantis"],
+                           cwd=REPO, capture_output=True, env=subprocess_env(), timeout=120,
+                           text=True)
+  assert refused.returncode == 2 and "atlantis" in refused.stderr
+
+
 def test_cli_errors_are_one_clear_line(capsys):
   assert cli.main(["run", "--world", "atlantis", "--no-progress"]) == 2
   err = capsys.readouterr().err
