@@ -63,7 +63,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
     progress: a progress bar over steps.
     devices: how many local devices to shard the batch over (default: all; at most one per robot;
       a batch that does not divide runs with copies of its last robot, their results dropped).
-    quiet: print no summary.
+    quiet: print nothing: no summary, no progress bar.
   Raises:
     ConfigError, MapError: a bad setting, before any compute.
     KeyboardInterrupt: after Ctrl-C, once the results of the chunks finished before it are
@@ -88,21 +88,12 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
                          list(range(robots)) + [robots - 1] * (padded - robots))
   chunk_epochs = spec.chunk_epochs or driver.default_chunk_epochs(config)
 
-  t0 = time.perf_counter()
-  state = driver.reset(config, world, batch)
-  t_reset = time.perf_counter() - t0
-  interrupts.check(nothing)
-  t0 = time.perf_counter()
-  compiled = driver.compile_advance(config, chunk_epochs, n_dev, world, batch.params, state)
-  t_compile = time.perf_counter() - t0
-  memory.check_compiled(compiled, config, padded, n_dev)
-  interrupts.check(nothing)
-
   bar = None
-  if progress:
+  if progress and not quiet:  # shown from the start: a compile can take a minute on a GPU
     from tqdm.auto import tqdm
-    bar = tqdm(total=config.max_steps, unit="step", desc=f"{spec.planner} x{robots} on {grid.name}",
-               disable=quiet)
+    label = f"{spec.planner} x{robots} on {grid.name}"
+    # smoothing=0: the rate is the mean since the start, the compile taken out below
+    bar = tqdm(total=config.max_steps, unit="step", desc=f"{label} (compiling)", smoothing=0)
 
   def show(rec, done):
     bar.update(min(rec.done.shape[0], config.max_steps - bar.n))
@@ -110,6 +101,18 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
                     coverage=f"{float(rec.coverage[-1, :robots].mean()):.3f}")
 
   try:
+    t0 = time.perf_counter()
+    state = driver.reset(config, world, batch)
+    t_reset = time.perf_counter() - t0
+    interrupts.check(nothing)
+    t0 = time.perf_counter()
+    compiled = driver.compile_advance(config, chunk_epochs, n_dev, world, batch.params, state)
+    t_compile = time.perf_counter() - t0
+    memory.check_compiled(compiled, config, padded, n_dev)
+    interrupts.check(nothing)
+    if bar is not None:
+      bar.start_t += t_reset + t_compile  # the rate and ETA count the steps' time only
+      bar.set_description(label)
     rollout = driver.drive(compiled, world, batch.params, state, config.max_steps,
                            interruptible=True, on_chunk=None if bar is None else show)
   finally:

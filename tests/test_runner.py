@@ -10,6 +10,7 @@ import jaxplore
 from jaxplore import cli
 from jaxplore.config import ConfigError
 from jaxplore.maps import MapError
+from jaxplore.runspec import RunSpec
 
 SMALL = dict(world="lab", robots=2, max_steps=40, replan_every=5, progress=False, quiet=True,
              params={"r_max": 3.0})
@@ -116,6 +117,16 @@ def test_cli_run_and_maps(tmp_path, capsys):
   assert cli.main(["maps", "--render", "lab", "--out", str(tmp_path / "lab.png")]) == 0
   assert (tmp_path / "lab.png").exists()
   assert cli.main(["plot", str(out)]) == 0
+
+
+def test_the_progress_bar_shows_the_compile_then_the_steps(small_run, capsys):
+  """The bar is up before the compile (a minute on a GPU), saying so, then counts the steps."""
+  jaxplore.run(**dict(SMALL, progress=True, quiet=False))
+  printed = capsys.readouterr()
+  label = f"{RunSpec().planner} x2 on lab"
+  assert f"{label} (compiling):" in printed.err
+  assert f"{label}: 100%" in printed.err and "40/40" in printed.err and "done=" in printed.err
+  assert "termination:" in printed.out
 
 
 def test_python_dash_m_runs_the_command():
