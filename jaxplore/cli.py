@@ -102,7 +102,8 @@ def _reporting_errors(compute):
 def _spec_flags(args, extra, planners) -> dict:
   """The run settings given as flags (None where not given), parameter tables included."""
   params, planner_params = _parameter_flags(extra, planners)
-  params.update(_key_values(args.set, "--set"))
+  # words pass: a planner's setting given to --set is refused by name, not as "no number"
+  params.update(_key_values(args.set, "--set", text_allowed=True))
   planner_params.update(_key_values(args.planner_set, "--planner-set", text_allowed=True))
   return dict(preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
               replan_every=args.replan_every, path_capacity=args.path_capacity,

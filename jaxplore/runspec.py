@@ -121,6 +121,25 @@ def _mapping(values, what: str, text_allowed: bool = False) -> Mapping:
                                  for k, v in values.items()})
 
 
+def _refuse_unknown_params(params: Mapping, planner: str) -> None:
+  """Refuses names in ``params`` that are no simulator parameter, pointing a weight or setting
+  of ``planner`` given there to ``planner_params``."""
+  unknown = sorted(set(map(str, params)) - set(SIM_PARAMS))
+  if not unknown:
+    return
+  message = f"unknown parameter(s) {unknown}; valid: {', '.join(SIM_PARAMS)}"
+  from jaxplore.planners import get_planner
+  try:
+    spec = get_planner(planner)
+  except ConfigError:
+    raise ConfigError(message) from None
+  theirs = [name for name in unknown if kind_of(name, spec) in ("weight", "setting")]
+  if theirs:
+    message += (f". {', '.join(theirs)}: of planner {planner!r}, so planner_params (the "
+                f"flags --planner-set NAME=VALUE or --NAME VALUE)")
+  raise ConfigError(message)
+
+
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
   """Every setting of one batch of robots (frozen; the field defaults are *the* defaults).
@@ -221,10 +240,9 @@ class RunSpec:
       put("pose_graph", bool(self.pose_graph))
     if self.graph_loops is not None:
       put("graph_loops", positive_int(self.graph_loops, "graph_loops"))
+    if isinstance(self.params, Mapping):  # names first: a planner's word is no number either
+      _refuse_unknown_params(self.params, self.planner)
     params = _mapping(self.params, "params")
-    unknown = sorted(set(params) - set(SIM_PARAMS))
-    if unknown:
-      raise ConfigError(f"unknown parameter(s) {unknown}; valid: {', '.join(SIM_PARAMS)}")
     put("params", params)
     put("planner_params", _mapping(self.planner_params, "planner_params", text_allowed=True))
     for what, values in (("parameter", params), ("planner parameter", self.planner_params)):

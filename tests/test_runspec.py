@@ -49,6 +49,22 @@ def test_bad_settings_are_refused_naming_them(settings, match):
     RunSpec.create(**settings)
 
 
+def test_a_name_given_to_the_wrong_table_is_pointed_to_the_right_one(capsys):
+  """A planner's weight or word-valued setting among the simulator's parameters, or a simulator
+  parameter among the planner's, is refused naming the table (and flags) it belongs to; a
+  word given to ``--set`` is refused by its name, not as "no number"."""
+  with pytest.raises(ConfigError, match=r"\['k1'\].*k1: of planner 'li2020', so planner_params"):
+    RunSpec.create(planner="li2020", params={"k1": 0.2})
+  with pytest.raises(ConfigError, match=r"region: of planner 'li2020', so planner_params"):
+    RunSpec.create(planner="li2020", params={"region": "disc"})
+  with pytest.raises(ConfigError, match=r"unknown parameter.*warp'\]; valid: [a-z0-9_, ]*$"):
+    RunSpec.create(planner="li2020", params={"warp": 1.0})  # nobody's: no pointer
+  with pytest.raises(ConfigError, match=r"no parameter\(s\) \['r_max'\].*r_max: the simulator's, so params"):
+    runner.prepare(world="lab", planner="li2020", planner_params={"r_max": 3.0})
+  assert cli.main(["run", "--world", "lab", "--planner", "li2020", "--set", "region=disc"]) == 2
+  assert "region: of planner 'li2020'" in capsys.readouterr().err
+
+
 def test_kinds_of_names_route_weights_and_static_settings():
   @dataclasses.dataclass(frozen=True)
   class Knobs:

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplore import mapping
-from jaxplore.config import ConfigError
+from jaxplore.config import PARAM_FIELDS, ConfigError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,8 +218,12 @@ class PlannerSpec:
     traced = {k: v for k, v in overrides.items() if k not in names}
     unknown = set(traced) - set(self.defaults)
     if unknown:
-      raise ConfigError(f"planner {self.name!r} has no parameter(s) {sorted(unknown)}; it has: "
-                        f"{', '.join(sorted(set(self.defaults) | names)) or 'none'}")
+      simulator = sorted(unknown & set(PARAM_FIELDS))
+      raise ConfigError(
+          f"planner {self.name!r} has no parameter(s) {sorted(unknown)}; it has: "
+          f"{', '.join(sorted(set(self.defaults) | names)) or 'none'}"
+          + (f". {', '.join(simulator)}: the simulator's, so params (the flags --set NAME=VALUE "
+             f"or --NAME VALUE)" if simulator else ""))
     return traced, static
 
 
