@@ -236,6 +236,12 @@ def test_k1_below_k2_is_enforced():
   with pytest.raises(ConfigError, match="k1 < k2"):
     li2020.validate({k: np.asarray(v) for k, v in dict(li2020.DEFAULTS, k1=0.7, k2=0.6).items()},
                     params_for(), CONFIG)
+  # One per robot (a sweep's batch): each bad pair named once, the good ones not at all.
+  weights = {k: np.full(6, v, np.float32) for k, v in li2020.DEFAULTS.items()}
+  weights["k1"] = np.array([0.1, 0.7, 0.7, 0.2, 0.95, 0.1], np.float32)
+  weights["k2"] = np.array([0.5, 0.6, 0.6, 0.9, 0.5, 0.5], np.float32)
+  with pytest.raises(ConfigError, match=r"\(k1, k2\) = \(0.7, 0.6\), \(0.95, 0.5\)$"):
+    li2020.validate(weights, params_for(), CONFIG)
 
 
 @pytest.mark.parametrize("region", ["visible", "disc"])
