@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import posegraph
-from jaxplore.errors import ConfigError
+from jaxplore.errors import ConfigError, shown
 
 
 
@@ -290,10 +290,9 @@ def validate_params(params: Params, config: SimConfig) -> None:
   def check(name, arr, ok, what):
     arr = np.asarray(arr, dtype=np.float64)
     if not np.all(np.isfinite(arr)):
-      raise ConfigError(f"parameter {name} is NaN or infinite: {arr.ravel()[:5]}")
+      raise ConfigError(f"parameter {name} is NaN or infinite: {shown(arr, ~np.isfinite(arr))}")
     if not np.all(ok(arr)):
-      bad = arr[~ok(arr)].ravel()[:5]
-      raise ConfigError(f"parameter {name} must be {what}, got {bad}")
+      raise ConfigError(f"parameter {name} must be {what}, got {shown(arr, ~ok(arr))}")
 
   p = params
   positive = lambda a: a > 0
@@ -410,9 +409,9 @@ def check_length(name: str, value, limit: float, sizes: str, length: str | None 
   infinite, negative or beyond ``limit`` metres."""
   arr = np.asarray(value, np.float64)
   if not np.all(np.isfinite(arr)):
-    raise ConfigError(f"parameter {name} is NaN or infinite: {arr.ravel()[:5]}")
+    raise ConfigError(f"parameter {name} is NaN or infinite: {shown(arr, ~np.isfinite(arr))}")
   if np.any(arr < 0):
-    raise ConfigError(f"parameter {name} must be >= 0, got {arr[arr < 0].ravel()[:5]}")
+    raise ConfigError(f"parameter {name} must be >= 0, got {shown(arr, arr < 0)}")
   if np.any(arr > limit):
     raise ConfigError(f"parameter {name}: {length or name} = {float(arr.max()):.4g} m sizes "
                       f"{sizes}, and "

@@ -90,6 +90,20 @@ def test_lengths_that_size_buffers_are_refused_by_name_before_any_size(overrides
     config_for((130, 170), 0.1, params, preset="li2020", **static)
 
 
+def test_a_refusal_names_each_bad_value_of_a_batch_once():
+  """One value per robot (a sweep's batch): the refusal lists the distinct bad values only."""
+  from jaxplore import sim
+  from jaxplore.config import validate_params
+  from jaxplore.errors import shown
+  params = sim.broadcast_params(make_params("li2020", res=0.1), 6)
+  config = config_for((130, 170), 0.1, make_params("li2020", res=0.1))
+  bad = params.replace(v_max=np.asarray([0.5, -1.0, -1.0, 0.5, -2.0, -1.0], np.float32))
+  with pytest.raises(ConfigError, match=r"parameter v_max must be > 0, got -2, -1$"):
+    validate_params(bad, config)
+  assert shown(np.arange(7.0)) == "0, 1, 2, 3 (and 3 more)"
+  assert shown(np.float32(0.25)) == "0.25"
+
+
 def test_length_limit_is_the_maps_diagonal_or_100_m():
   # a preset's 15 m lidar on a map smaller than its range is fine; on a 1 km map so is 1 km
   assert config_for((3, 3), 0.1, make_params("li2020", res=0.1)).max_range_cells == 150

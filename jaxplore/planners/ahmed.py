@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import motion, posegraph
-from jaxplore.config import ConfigError
+from jaxplore.errors import ConfigError, shown
 from jaxplore.graph import labels
 from jaxplore.graph.dijkstra import extract_path
 from jaxplore.planners import base, godoy2023
@@ -121,22 +121,25 @@ def validate(weights, params, ctx):
   settings = ctx.settings
   w = {k: np.asarray(v) for k, v in weights.items()}
   for name in ("p_unknown", "p_known"):
-    if name in w and np.any((w[name] <= 0) | (w[name] >= 1)):
-      raise ConfigError(f"ahmed: {name} must be in (0, 1), got {w[name]}")
+    bad = (w[name] <= 0) | (w[name] >= 1) if name in w else False
+    if np.any(bad):
+      raise ConfigError(f"ahmed: {name} must be in (0, 1), got {shown(w[name], bad)}")
   for name in ("even", "gamma_cells"):
-    if name in w and np.any(~np.isin(w[name], [0.0, 1.0])):
-      raise ConfigError(f"ahmed: {name} must be 0 or 1, got {w[name]}")
+    bad = ~np.isin(w[name], [0.0, 1.0]) if name in w else False
+    if np.any(bad):
+      raise ConfigError(f"ahmed: {name} must be 0 or 1, got {shown(w[name], bad)}")
   for name in ("info_radius", "filter_radius"):
-    if np.any((w[name] <= 0) | (w[name] > settings.disc_m + 1e-6)):
+    bad = (w[name] <= 0) | (w[name] > settings.disc_m + 1e-6)
+    if np.any(bad):
       raise ConfigError(f"ahmed: {name} must be in (0, {settings.disc_m}] m (Settings.disc_m), "
-                        f"got {w[name]}")
+                        f"got {shown(w[name], bad)}")
   for name in ("halluc_spacing", "halluc_loop_radius", "odom_var_xy", "odom_var_theta"):
     if np.any(w[name] <= 0):
-      raise ConfigError(f"ahmed: {name} must be > 0, got {w[name]}")
+      raise ConfigError(f"ahmed: {name} must be > 0, got {shown(w[name], w[name] <= 0)}")
   if np.any(w["odom_cov_xy"] ** 2 >= w["odom_var_xy"] ** 2):
     raise ConfigError("ahmed: the hallucinated odometry covariance must be positive definite "
-                      f"(|odom_cov_xy| < odom_var_xy), got {w['odom_cov_xy']} and "
-                      f"{w['odom_var_xy']}")
+                      f"(|odom_cov_xy| < odom_var_xy), got {shown(w['odom_cov_xy'])} and "
+                      f"{shown(w['odom_var_xy'])}")
 
 
 def _weights(params) -> dict:

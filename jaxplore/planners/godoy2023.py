@@ -69,7 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import mapping
-from jaxplore.config import ConfigError
+from jaxplore.errors import ConfigError, shown
 from jaxplore.graph import labels
 from jaxplore.planners import base
 from jaxplore.planners.frontier import plan_to, reachable_paths
@@ -112,7 +112,8 @@ def validate_frt(weights, params, config, name="frt"):
   ``min_frontier_size`` is not negative."""
   d_path = np.asarray(weights["d_path"])
   if np.any(~np.isin(d_path, [0.0, 1.0])):
-    raise ConfigError(f"{name}: d_path must be 0 (Euclidean d, the paper) or 1 (path cost), got {d_path}")
+    raise ConfigError(f"{name}: d_path must be 0 (Euclidean d, the paper) or 1 (path cost), "
+                      f"got {shown(d_path, ~np.isin(d_path, [0.0, 1.0]))}")
   if np.any(~np.isin(np.asarray(weights["d_nearest"]), [0.0, 1.0])):
     raise ConfigError(f"{name}: d_nearest must be 0 (d to the candidate) or 1 (to the nearest frontier cell)")
   if np.any(np.asarray(weights["min_frontier_size"]) < 0):
@@ -124,7 +125,8 @@ def validate_ig(weights, params, config):
   validate_frt(weights, params, config, name="ig")
   radius = np.asarray(weights["D"])
   if np.any(radius <= 0):
-    raise ConfigError(f"ig: D (Algorithm 1's neighbourhood radius, m) must be > 0, got {radius}")
+    raise ConfigError(f"ig: D (Algorithm 1's neighbourhood radius, m) must be > 0, "
+                      f"got {shown(radius, radius <= 0)}")
 
 
 def _weights(params, defaults: dict) -> dict:

@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import gp, mapping, sensor, virtual_scan
-from jaxplore.config import ConfigError
+from jaxplore.errors import ConfigError, shown
 from jaxplore.graph import labels
 from jaxplore.planners import base
 from jaxplore.planners.frontier import plan_to, reachable_paths
@@ -121,16 +121,18 @@ def validate(weights, params, ctx):
   if np.any(~np.isin(np.asarray(weights["gain_kind"]), [0.0, 1.0, 2.0])):
     raise ConfigError("gpbo: gain_kind must be 0 (entropy), 1 (known area) or 2 (free area)")
   delta = np.asarray(weights["delta"])
-  if np.any((delta <= 0) | (delta >= 1)):
-    raise ConfigError(f"gpbo: delta must be in (0, 1), got {delta}")
+  bad = (delta <= 0) | (delta >= 1)
+  if np.any(bad):
+    raise ConfigError(f"gpbo: delta must be in (0, 1), got {shown(delta, bad)}")
   for name in ("learning_rate", "min_distance"):
     if np.any(np.asarray(weights[name]) <= 0):
       raise ConfigError(f"gpbo: {name} must be > 0")
   if np.any(np.asarray(weights["robot_clearance"]) < 0):
     raise ConfigError("gpbo: robot_clearance must be >= 0")
   angle = np.asarray(weights["rescan_angle"])
-  if np.any(~np.isfinite(angle) | (angle <= 0) | (angle >= 2 * math.pi)):
-    raise ConfigError(f"gpbo: rescan_angle must be in (0, 2π) rad, got {angle}")
+  bad = ~np.isfinite(angle) | (angle <= 0) | (angle >= 2 * math.pi)
+  if np.any(bad):
+    raise ConfigError(f"gpbo: rescan_angle must be in (0, 2π) rad, got {shown(angle, bad)}")
 
 
 @chex.dataclass(frozen=True)

@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import mapping, reductions
-from jaxplore.config import ConfigError
+from jaxplore.errors import ConfigError, shown
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.graph.tree import nearest_ancestor, path_sums
 from jaxplore.planners import base
@@ -149,10 +149,9 @@ def validate(weights, params, ctx):
   k1, k2 = np.broadcast_arrays(np.asarray(weights["k1"]), np.asarray(weights["k2"]))
   bad = (k1 < 0) | (k2 >= 1) | (k1 >= k2)
   if np.any(bad):
-    pairs = sorted({(float(a), float(b)) for a, b in zip(k1[bad].ravel(), k2[bad].ravel())})
-    shown = ", ".join(f"({a:g}, {b:g})" for a, b in pairs[:4])
-    raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got (k1, k2) = {shown}"
-                      + (f" (and {len(pairs) - 4} more pairs)" if len(pairs) > 4 else ""))
+    pairs = np.array([f"({a:g}, {b:g})" for a, b in zip(k1[bad].ravel().tolist(),
+                                                          k2[bad].ravel().tolist())])
+    raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got (k1, k2) = {shown(pairs)}")
   if np.any(np.asarray(weights["progress_m"]) < 0):
     raise ConfigError("li2020: progress_m must be >= 0 (0 disables the progress timeout)")
   if np.any(np.asarray(weights["det_sigma_max"]) <= 0):

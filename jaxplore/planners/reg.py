@@ -92,7 +92,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore.config import ConfigError
+from jaxplore.errors import ConfigError, shown
 from jaxplore.graph import node_graph
 from jaxplore.planners import base
 from jaxplore.planners import reg_kernels as K
@@ -216,21 +216,21 @@ def validate(weights, params, ctx) -> None:
                       f"max_draws={s.max_draws}, max_radius={s.max_radius}, "
                       f"arc_reach={s.arc_reach})")
   w = {k: np.asarray(weights.get(k, v), np.float64) for k, v in DEFAULTS.items()}
-  checks = [
-      ("R", np.all(w["R"] > 0), "> 0"),
-      ("R", np.all(w["R"] <= s.max_radius + 1e-6),
+  checks = [  # (name, where it is fine, what it must be)
+      ("R", w["R"] > 0, "> 0"),
+      ("R", w["R"] <= s.max_radius + 1e-6,
        f"<= the setting max_radius = {s.max_radius} m (raise it)"),
-      ("r", np.all((w["r"] > 0) & (w["r"] < 1)), "in (0, 1)"),
-      ("d_min", np.all(w["d_min"] >= 0), ">= 0"),
-      ("I_max", np.all((w["I_max"] >= 1) & (w["I_max"] <= s.max_draws)),
+      ("r", (w["r"] > 0) & (w["r"] < 1), "in (0, 1)"),
+      ("d_min", w["d_min"] >= 0, ">= 0"),
+      ("I_max", (w["I_max"] >= 1) & (w["I_max"] <= s.max_draws),
        f"in [1, max_draws = {s.max_draws}] (raise the setting max_draws)"),
-      ("arrive_tol", np.all(w["arrive_tol"] >= 0), ">= 0"),
-      ("retries", np.all(w["retries"] >= 0), ">= 0"),
-      ("shadow_jump", np.all(w["shadow_jump"] >= 0), ">= 0"),
+      ("arrive_tol", w["arrive_tol"] >= 0, ">= 0"),
+      ("retries", w["retries"] >= 0, ">= 0"),
+      ("shadow_jump", w["shadow_jump"] >= 0, ">= 0"),
   ]
   for name, ok, what in checks:
-    if not ok:
-      raise ConfigError(f"REG parameter {name} must be {what}, got {np.ravel(w[name])[:5]}")
+    if not np.all(ok):
+      raise ConfigError(f"REG parameter {name} must be {what}, got {shown(w[name], ~ok)}")
   r_max = np.asarray(params.r_max, np.float64)
   if s.belief_arcs and np.any(r_max > w["R"] + 1e-6):
     raise ConfigError(
