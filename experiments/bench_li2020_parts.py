@@ -1,6 +1,8 @@
 """Benchmark: where one li2020 plan's time goes, part by part, for a chunk of robots.
 
-li2020 is the planner that keeps the lockstep strategy short of its GPU target: on one H100
+li2020 is the planner whose steps cost most under the lockstep strategy: it meets its GPU target
+(10x the 2-core CPU) only from ~1,024 robots on, and after the first plans 4,096 robots run
+9-10x (``experiments/results/bench_lab_li2020_gpu.md``). On one H100
 (``lab``, 64 robots) a step with a robot or two planning costs 60-100 ms, nearly all of it in
 the planning round (``experiments/results/bench_lockstep_variants_gpu.md``), while the CPU's
 whole step costs ~2 ms per robot. A plan is a sequence of parts, each a loop whose trip count is
