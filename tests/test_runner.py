@@ -226,3 +226,26 @@ def test_a_batch_that_does_not_divide_over_the_devices_is_padded_not_run_on_fewe
                         env=subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
                         timeout=300)
   assert done.returncode == 0, done.stderr.decode()[-3000:]
+
+
+@pytest.mark.slow  # the README's Python example, run for 4 steps: `pytest -m slow`
+def test_the_readme_python_example_runs(tmp_path, monkeypatch):
+  """The README's Python block, as a user would paste it, with every run cut to 4 steps and no
+  progress output (its settings otherwise as written: worlds, planners, grids, seeds)."""
+  import re
+  from conftest import REPO
+  block = re.search(r"```python\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
+  real_run, real_sweep = jaxplore.run, jaxplore.sweep
+  short = dict(max_steps=4, progress=False, quiet=True)
+  monkeypatch.setattr(jaxplore, "run", lambda *a, **k: real_run(*a, **{**k, **short}),
+                      raising=False)
+  monkeypatch.setattr(jaxplore, "sweep",
+                      lambda *a, **k: real_sweep(*a, **{**k, **(short if "resume" not in k else
+                                                               dict(progress=False, quiet=True))}),
+                      raising=False)
+  monkeypatch.chdir(tmp_path)
+  namespace = {}
+  exec(compile(block, "README.md", "exec"), namespace)
+  assert len(namespace["result"].episodes) == 32
+  assert len(namespace["sweep"].episodes) == 2 * 2 * 4 * 4  # alpha x k1 x samples x seeds
+  assert (tmp_path / "runs" / "s" / "episodes.parquet").exists()
