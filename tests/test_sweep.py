@@ -510,3 +510,31 @@ def test_cli_grid_takes_words_for_a_word_valued_setting(monkeypatch):
     cli.main(["sweep", "--world", "open", "--planner", "li2020", "--grid", "region=disc,visible",
               "alpha=1,2", "--no-progress", "--quiet"])
   assert called.value.args[0] == {"region": ["disc", "visible"], "alpha": [1.0, 2.0]}
+
+
+def test_the_readme_toml_example_schedules_without_an_error(tmp_path, monkeypatch):
+  """The README's TOML sweep, as a user would save it, goes through every check a sweep makes
+  before compute (settings, worlds, planners' weights, memory) and is scheduled; the compute
+  itself (2 worlds x 2 planners x 96 settings x 8 seeds) is left out."""
+  import re
+  block = re.search(r"```toml\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
+  (tmp_path / "sweep.toml").write_text(block)
+  monkeypatch.chdir(tmp_path)
+  scheduled = []
+
+  class Scheduled(Exception):
+    pass
+
+  def stop(made, group_runs, *args):
+    scheduled.append((made, group_runs))
+    raise Scheduled
+
+  monkeypatch.setattr(execute, "execute", stop)
+  with pytest.raises(Scheduled):
+    jaxplore.sweep(config="sweep.toml", progress=False, quiet=True, devices=1)
+  made, group_runs = scheduled[0]
+  assert {(g.world, g.planner) for g in made.groups} == {
+      (w, p) for w in (0, 1) for p in ("li2020", "nearest_frontier")}  # worlds by index
+  assert {r.resolved.grid.name for r in group_runs} == {"lab", "office"}
+  assert all(r.resolved.config.res == 0.2 for r in group_runs)
+  assert (tmp_path / "runs" / "sweep_toml" / sweeps.SCHEDULE_FILE).exists()
