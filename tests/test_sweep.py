@@ -512,27 +512,47 @@ def test_cli_grid_takes_words_for_a_word_valued_setting(monkeypatch):
   assert called.value.args[0] == {"region": ["disc", "visible"], "alpha": [1.0, 2.0]}
 
 
-def test_the_readme_toml_example_schedules_without_an_error(tmp_path, monkeypatch):
-  """The README's TOML sweep, as a user would save it, goes through every check a sweep makes
-  before compute (settings, worlds, planners' weights, memory) and is scheduled; the compute
-  itself (2 worlds x 2 planners x 96 settings x 8 seeds) is left out."""
-  import re
-  block = re.search(r"```toml\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
-  (tmp_path / "sweep.toml").write_text(block)
+class Scheduled(Exception):
+  """Raised where a sweep would start computing (the README examples' tests stop there)."""
+
+
+@pytest.fixture
+def stop_at_compute(tmp_path, monkeypatch):
+  """Runs in ``tmp_path``; a sweep raises :class:`Scheduled` instead of computing, its schedule
+  and resolved groups kept in the returned list."""
   monkeypatch.chdir(tmp_path)
   scheduled = []
-
-  class Scheduled(Exception):
-    pass
 
   def stop(made, group_runs, *args):
     scheduled.append((made, group_runs))
     raise Scheduled
 
   monkeypatch.setattr(execute, "execute", stop)
+  return scheduled
+
+
+def test_the_readme_sweep_command_schedules_without_an_error(stop_at_compute):
+  """The README's `jaxplore sweep` command line passes every check before compute."""
+  import re
+  import shlex
+  line = re.search(r"^jaxplore sweep .*$", (REPO / "README.md").read_text(), re.M).group(0)
+  with pytest.raises(Scheduled):
+    cli.main(shlex.split(line)[1:] + ["--no-progress", "--devices", "1"])
+  made, group_runs = stop_at_compute[0]
+  assert [g.planner for g in made.groups] == ["li2020"]
+  assert len(made.groups[0].rows) == 3 * 3 * 2 * 8  # alpha x k1 x k2 x seeds
+
+
+def test_the_readme_toml_example_schedules_without_an_error(tmp_path, stop_at_compute):
+  """The README's TOML sweep, as a user would save it, goes through every check a sweep makes
+  before compute (settings, worlds, planners' weights, memory) and is scheduled; the compute
+  itself (2 worlds x 2 planners x 96 settings x 8 seeds) is left out."""
+  import re
+  block = re.search(r"```toml\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
+  (tmp_path / "sweep.toml").write_text(block)
   with pytest.raises(Scheduled):
     jaxplore.sweep(config="sweep.toml", progress=False, quiet=True, devices=1)
-  made, group_runs = scheduled[0]
+  made, group_runs = stop_at_compute[0]
   assert {(g.world, g.planner) for g in made.groups} == {
       (w, p) for w in (0, 1) for p in ("li2020", "nearest_frontier")}  # worlds by index
   assert {r.resolved.grid.name for r in group_runs} == {"lab", "office"}
