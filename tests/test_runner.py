@@ -1,6 +1,7 @@
 """``jaxplore.run`` and the ``jaxplore`` command: outputs, reproducibility, clear errors on bad input."""
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -232,7 +233,6 @@ def test_a_batch_that_does_not_divide_over_the_devices_is_padded_not_run_on_fewe
 def test_the_readme_python_example_runs(tmp_path, monkeypatch):
   """The README's Python block, as a user would paste it, with every run cut to 4 steps and no
   progress output (its settings otherwise as written: worlds, planners, grids, seeds)."""
-  import re
   from conftest import REPO
   block = re.search(r"```python\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
   real_run, real_sweep = jaxplore.run, jaxplore.sweep

@@ -59,7 +59,8 @@ def test_a_name_given_to_the_wrong_table_is_pointed_to_the_right_one(capsys):
     RunSpec.create(planner="li2020", params={"region": "disc"})
   with pytest.raises(ConfigError, match=r"unknown parameter.*warp'\]; valid: [a-z0-9_, ]*$"):
     RunSpec.create(planner="li2020", params={"warp": 1.0})  # nobody's: no pointer
-  with pytest.raises(ConfigError, match=r"no parameter\(s\) \['r_max'\].*r_max: the simulator's, so params"):
+  with pytest.raises(ConfigError,
+                     match=r"no parameter\(s\) \['r_max'\].*r_max: the simulator's, so params"):
     runner.prepare(world="lab", planner="li2020", planner_params={"r_max": 3.0})
   assert cli.main(["run", "--world", "lab", "--planner", "li2020", "--set", "region=disc"]) == 2
   assert "region: of planner 'li2020'" in capsys.readouterr().err

@@ -8,6 +8,8 @@ Every compute here is a 40 x 40 world (``open`` at 0.5 m) for 30 steps; the sett
 import dataclasses
 import json
 import os
+import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -533,8 +535,6 @@ def stop_at_compute(tmp_path, monkeypatch):
 
 def test_the_readme_sweep_command_schedules_without_an_error(stop_at_compute):
   """The README's `jaxplore sweep` command line passes every check before compute."""
-  import re
-  import shlex
   line = re.search(r"^jaxplore sweep .*$", (REPO / "README.md").read_text(), re.M).group(0)
   with pytest.raises(Scheduled):
     cli.main(shlex.split(line)[1:] + ["--no-progress", "--devices", "1"])
@@ -547,7 +547,6 @@ def test_the_readme_toml_example_schedules_without_an_error(tmp_path, stop_at_co
   """The README's TOML sweep, as a user would save it, goes through every check a sweep makes
   before compute (settings, worlds, planners' weights, memory) and is scheduled; the compute
   itself (2 worlds x 2 planners x 96 settings x 8 seeds) is left out."""
-  import re
   block = re.search(r"```toml\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
   (tmp_path / "sweep.toml").write_text(block)
   with pytest.raises(Scheduled):
