@@ -149,8 +149,7 @@ def validate(weights, params, ctx):
   k1, k2 = np.broadcast_arrays(np.asarray(weights["k1"]), np.asarray(weights["k2"]))
   bad = (k1 < 0) | (k2 >= 1) | (k1 >= k2)
   if np.any(bad):
-    pairs = np.array([f"({a:g}, {b:g})" for a, b in zip(k1[bad].ravel().tolist(),
-                                                          k2[bad].ravel().tolist())])
+    pairs = [f"({a:g}, {b:g})" for a, b in zip(k1[bad].tolist(), k2[bad].tolist())]
     raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got (k1, k2) = {shown(pairs)}")
   if np.any(np.asarray(weights["progress_m"]) < 0):
     raise ConfigError("li2020: progress_m must be >= 0 (0 disables the progress timeout)")
