@@ -53,7 +53,7 @@ sys.path.insert(0, str(HERE))
 from bench_accelerator import ResultsFile, _int_list  # noqa: E402
 from stage_times import median_call_s  # noqa: E402
 
-from jaxplore import driver, planning, sim  # noqa: E402
+from jaxplore import driver, linalg, planning, sim  # noqa: E402
 from jaxplore.graph import batching  # noqa: E402
 from jaxplore.graph.dijkstra import extract_path, shortest_paths  # noqa: E402
 from jaxplore.graph.tree import nearest_ancestor  # noqa: E402
@@ -98,7 +98,7 @@ def parts(config, world):
     return li2020.path_geometry(ctx, robot, params, sp.pred)
 
   def candidates(params, view, sp, cov):
-    within = (li2020.det3(cov) <= params.planner["det_sigma_max"]) & jnp.isfinite(sp.dist).ravel()
+    within = (linalg.det3(cov) <= params.planner["det_sigma_max"]) & jnp.isfinite(sp.dist).ravel()
     b_e, b_g = li2020.boundaries(view, params.planner["tau_e"])
     cut = nearest_ancestor(sp.pred.ravel(), within)
     return jnp.where((b_e | b_g).ravel(), cut, -1)

@@ -31,6 +31,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from jaxplore import linalg
+
 # Floors under the softplus-constrained hyper-parameters (signal variance, length scale, noise
 # variance) keep the Cholesky factorisation well conditioned in float32.
 FLOORS = (1e-4, 1e-3, 1e-4)
@@ -92,13 +94,13 @@ def _train_factor(raw, x, mask, wrap_yaw):
   both = mask[:, None] & mask[None, :]
   k = jnp.where(both, matern32(sq_distances(x, x, wrap_yaw), signal_var, length_scale), 0.0)
   diagonal = jnp.where(mask, noise_var + JITTER * signal_var, 1.0)
-  return jnp.linalg.cholesky(k + jnp.diag(diagonal))
+  return linalg.cholesky(k + jnp.diag(diagonal))
 
 
 def _solve(chol, b):
   """``(L Lᵀ)⁻¹ b`` for a lower-triangular ``L``."""
-  z = jax.scipy.linalg.solve_triangular(chol, b, lower=True)
-  return jax.scipy.linalg.solve_triangular(chol.T, z, lower=False)
+  z = linalg.solve_triangular(chol, b, lower=True)
+  return linalg.solve_triangular(chol.T, z, lower=False)
 
 
 def neg_log_marginal_likelihood(raw, x, y, mask, wrap_yaw: bool = True):
@@ -111,7 +113,7 @@ def neg_log_marginal_likelihood(raw, x, y, mask, wrap_yaw: bool = True):
   """
   y = jnp.where(mask, y, 0.0)
   chol = _train_factor(raw, x, mask, wrap_yaw)
-  z = jax.scipy.linalg.solve_triangular(chol, y, lower=True)
+  z = linalg.solve_triangular(chol, y, lower=True)
   n = jnp.sum(mask).astype(jnp.float32)
   return 0.5 * jnp.dot(z, z) + jnp.sum(jnp.log(jnp.diagonal(chol))) + 0.5 * n * math.log(2 * math.pi)
 
@@ -130,7 +132,7 @@ def posterior(raw, x, y, mask, x_test, wrap_yaw: bool = True):
   k_star = jnp.where(mask[None, :],
                      matern32(sq_distances(x_test, x, wrap_yaw), signal_var, length_scale), 0.0)
   mean = k_star @ _solve(chol, y)
-  v = jax.scipy.linalg.solve_triangular(chol, k_star.T, lower=True)
+  v = linalg.solve_triangular(chol, k_star.T, lower=True)
   var = jnp.maximum(signal_var - jnp.sum(v * v, axis=0), 0.0)
   return mean, var
 
@@ -164,12 +166,12 @@ def loss_and_grad(raw, x, y, mask, wrap_yaw: bool = True):
   s = SQRT3 * jnp.where(positive, jnp.sqrt(jnp.where(positive, sq, 1.0)), 0.0) / length_scale
   shape = jnp.where(both, (1.0 + s) * jnp.exp(-s), 0.0)  # k / σ_f²
   diagonal = jnp.where(mask, noise_var + JITTER * signal_var, 1.0)
-  chol = jnp.linalg.cholesky(signal_var * shape + jnp.diag(diagonal))
-  z = jax.scipy.linalg.solve_triangular(chol, y, lower=True)
+  chol = linalg.cholesky(signal_var * shape + jnp.diag(diagonal))
+  z = linalg.solve_triangular(chol, y, lower=True)
   n = jnp.sum(mask).astype(jnp.float32)
   loss = 0.5 * jnp.dot(z, z) + jnp.sum(jnp.log(jnp.diagonal(chol))) + 0.5 * n * math.log(2 * math.pi)
 
-  alpha = jax.scipy.linalg.solve_triangular(chol.T, z, lower=False)
+  alpha = linalg.solve_triangular(chol.T, z, lower=False)
   k_inv = _solve(chol, jnp.eye(y.shape[0], dtype=jnp.float32))
   w = k_inv - alpha[:, None] * alpha[None, :]
   valid = mask.astype(jnp.float32)

@@ -13,6 +13,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplore import linalg
+
 
 def wrap_angle(a):
   """Angle in (−π, π]."""
@@ -90,7 +92,7 @@ def relocalise(pose_est, cov, pose_true, meas_cov):
 
   ``Σ ← (Σ⁻¹ + R⁻¹)⁻¹`` and the estimate moves toward the truth by the gain ``K = Σ(Σ + R)⁻¹``.
   """
-  gain = cov @ jnp.linalg.inv(cov + meas_cov)
+  gain = cov @ linalg.inv(cov + meas_cov)
   innovation = pose_true - pose_est
   innovation = innovation.at[2].set(wrap_angle(innovation[2]))
   new_est = pose_est + gain @ innovation

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import mapping, motion
+from jaxplore import linalg, mapping, motion
 from jaxplore.errors import ConfigError
 
 # Candidates whose line of sight is checked, nearest first, when a keyframe looks for a loop.
@@ -93,21 +93,14 @@ def init(pose, node_capacity: int, loop_capacity: int) -> PoseGraph:
 def d_optimality(info):
   """D-optimality of an information matrix, ``exp(Σ log λ_i / k)`` over its k eigenvalues
   (Placed & Castellanos 2021, the edge weight of Ahmed Eq 8). f32[..., k, k] -> f32[...]."""
-  eig = jnp.linalg.eigvalsh(info)
+  eig = linalg.eigvalsh(info)
   return jnp.exp(jnp.mean(jnp.log(eig), axis=-1))
 
 
 def d_optimality_of_covariance(cov):
   """:func:`d_optimality` of ``cov⁻¹`` without inverting: ``exp(−Σ log λ_i(cov) / k)``."""
-  eig = jnp.linalg.eigvalsh(cov)
+  eig = linalg.eigvalsh(cov)
   return jnp.exp(-jnp.mean(jnp.log(eig), axis=-1))
-
-
-def _det3(m):
-  """Determinant of a symmetric 3x3 matrix by cofactors (cheaper than an eigensolve per step)."""
-  return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-          - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-          + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
 
 
 # --- capacity ------------------------------------------------------------------------------------
@@ -186,7 +179,7 @@ def observe(graph: PoseGraph, pose, v_n, increment, active, logodds, origin, res
   new = active & ((moved >= params.kf_dist) | (jnp.abs(acc_pose[2]) >= params.kf_rot)) & (i < n_cap)
   sm_var = params.scan_match_sigma ** 2
   edge_cov = acc_cov + sm_var * jnp.eye(3, dtype=jnp.float32)
-  w_odometry = jnp.cbrt(1.0 / _det3(edge_cov))
+  w_odometry = jnp.cbrt(1.0 / linalg.det3(edge_cov))
   slot = jnp.where(new, i, n_cap)
   poses = graph.poses.at[slot].set(pose.astype(jnp.float32), mode="drop")
   chain_w = graph.chain_w.at[slot].set(w_odometry, mode="drop")
@@ -257,7 +250,7 @@ def reduced_logdet(lap, valid, anchor=0):
   keep = valid & (jnp.arange(lap.shape[0]) != anchor)
   both = keep[:, None] & keep[None, :]
   eye = jnp.eye(lap.shape[0], dtype=lap.dtype)
-  chol = jnp.linalg.cholesky(jnp.where(both, lap, eye))
+  chol = linalg.cholesky(jnp.where(both, lap, eye))
   return 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol)))
 
 
@@ -270,7 +263,7 @@ def algebraic_connectivity(lap, valid):
   both = valid[:, None] & valid[None, :]
   top = 2.0 * jnp.max(jnp.where(valid, jnp.diagonal(lap), 0.0)) + 1.0
   masked = jnp.where(both, lap, jnp.where(jnp.eye(lap.shape[0], dtype=bool), top, 0.0))
-  return jnp.linalg.eigvalsh(masked)[1]
+  return linalg.eigvalsh(masked)[1]
 
 
 def average_degree(n_nodes, n_edges):
@@ -322,7 +315,7 @@ def logdet_parts(graph: PoseGraph):
   k = jnp.arange(graph.chain_w.shape[0])
   chain_term = jnp.sum(jnp.where((k >= 1) & (k < graph.n_nodes),
                                  jnp.log(jnp.where(graph.chain_w > 0, graph.chain_w, 1.0)), 0.0))
-  chol = jnp.linalg.cholesky(loop_capacitance(graph, resistance))
+  chol = linalg.cholesky(loop_capacitance(graph, resistance))
   root_w = jnp.sqrt(jnp.where(jnp.arange(graph.loops.shape[0]) < graph.n_loops, graph.loop_w, 0.0))
   logdet = chain_term + 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol)))
   return logdet, resistance, chol, root_w
@@ -359,8 +352,8 @@ def extended_logdet(graph: PoseGraph, parts, new_w, new_valid, loop_to, loop_w):
   b = root_w[:, None] * b * root_h[None, :]
   d = shared_resistance(r_new[:, None], r_to[:, None], r_new[None, :], r_to[None, :])
   d = jnp.eye(lw.shape[0], dtype=jnp.float32) + root_h[:, None] * d * root_h[None, :]
-  y = jax.scipy.linalg.solve_triangular(chol, b, lower=True)
+  y = linalg.solve_triangular(chol, b, lower=True)
   schur = d - y.T @ y
-  schur_chol = jnp.linalg.cholesky(schur)
+  schur_chol = linalg.cholesky(schur)
   return (logdet + jnp.sum(jnp.where(new_valid, jnp.log(w), 0.0))
           + 2.0 * jnp.sum(jnp.log(jnp.diagonal(schur_chol))))

@@ -25,7 +25,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import mapping, motion, posegraph, sensor
+from jaxplore import linalg, mapping, motion, posegraph, sensor
 from jaxplore.config import Params, SimConfig
 from jaxplore.errors import ConfigError
 from jaxplore.planners import base as planners_base
@@ -281,7 +281,7 @@ def record(world: World, state: State) -> Record:
     graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
                  dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
-                coverage=state.covered / world.n_reachable, det_cov=jnp.linalg.det(state.cov),
+                coverage=state.covered / world.n_reachable, det_cov=linalg.det3(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
                 x=state.pose[0], y=state.pose[1], done=state.done, **graph)
 

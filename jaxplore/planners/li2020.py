@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import mapping, reductions
+from jaxplore import linalg, mapping, reductions
 from jaxplore.errors import ConfigError, shown
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.graph.tree import nearest_ancestor, path_sums
@@ -498,14 +498,6 @@ def path_gain(gain_grid, cells, length, radius: float):
   return jnp.sum(jnp.where(covered, gain_grid, 0.0))
 
 
-def det3(m):
-  """Determinant of stacked 3x3 matrices by cofactor expansion along the first row
-  (``jnp.linalg.det`` LU-factorises each of the H * W matrices of a planning round)."""
-  return (m[..., 0, 0] * (m[..., 1, 1] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 1])
-          - m[..., 0, 1] * (m[..., 1, 0] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 0])
-          + m[..., 0, 2] * (m[..., 1, 0] * m[..., 2, 1] - m[..., 1, 1] * m[..., 2, 0]))
-
-
 def _covariance_from_sums(sums, xy, xy_root, cov0):
   """Σ at every node from the running sums of Eq 16–17 along its path.
 
@@ -696,7 +688,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   idx = jnp.arange(h * w, dtype=jnp.int32)
 
   # Eq 18-19: cut every candidate at its last waypoint within the covariance limit.
-  within = (det3(cov) <= weights["det_sigma_max"]) & reachable
+  within = (linalg.det3(cov) <= weights["det_sigma_max"]) & reachable
   boundary = (b_e | b_g).ravel() & reachable & (idx != root)
   cut = nearest_ancestor(sp.pred.ravel(), within)
   cut = jnp.where(boundary, cut, -1)
@@ -732,7 +724,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   explore = jnp.isfinite(score[best])
 
   frontier_left = jnp.any(view.frontier.ravel() & reachable)
-  needs_reloc = jnp.linalg.det(robot.cov) > weights["det_sigma_max"]
+  needs_reloc = linalg.det3(robot.cov) > weights["det_sigma_max"]
   fallback_score = jnp.where(boundary, reexplore, -jnp.inf)
   fallback = reductions.argmax(fallback_score, w)
   can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
