@@ -84,9 +84,16 @@ def _set_devices(n):
     os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
 
 
+STALLED_EXIT_CODE = 3
+
+
 def _reporting_errors(compute):
-  """``(compute(), 0)``; a bad setting or map prints ``jaxplore: error: ...`` and gives exit code 2,
-  Ctrl-C (results already written are kept) gives 130."""
+  """``(compute(), 0)``; a bad setting or map prints ``jaxplore: error: ...`` and gives exit code
+  2, Ctrl-C (results already written are kept) 130, a stalled run
+  (:class:`jaxplore.driver.Watchdog`; the results of the finished chunks written) 3. Where a
+  compiled call given up on still runs, the process ends at once: a normal interpreter exit
+  would wait for it."""
+  from jaxplore import driver
   from jaxplore.config import ConfigError
   from jaxplore.maps import MapError
   try:
@@ -94,9 +101,15 @@ def _reporting_errors(compute):
   except (ConfigError, MapError) as err:
     print(f"jaxplore: error: {err}", file=sys.stderr)
     return None, 2
-  except KeyboardInterrupt as err:
-    print(f"jaxplore: {err or 'interrupted'}", file=sys.stderr)
-    return None, 130
+  except (driver.Stalled, KeyboardInterrupt) as err:
+    stalled = isinstance(err, driver.Stalled)
+    print(f"jaxplore: {'error: ' if stalled else ''}{err or 'interrupted'}", file=sys.stderr,
+          flush=True)
+    code = STALLED_EXIT_CODE if stalled else 130
+    if driver.dropped_call_running():
+      sys.stdout.flush()
+      os._exit(code)
+    return None, code
 
 
 def _spec_flags(args, extra, planners) -> dict:

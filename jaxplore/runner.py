@@ -68,6 +68,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
     ConfigError, MapError: a bad setting, before any compute.
     KeyboardInterrupt: after Ctrl-C, once the results of the chunks finished before it are
       written (``out``) and summarised.
+    jaxplore.driver.Stalled: a chunk made no progress (:class:`jaxplore.driver.Watchdog`), once
+      the results of the chunks finished before it are written and summarised.
   """
   if spec is None:
     spec = RunSpec.create(**settings)
@@ -86,7 +88,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   interrupts.check(nothing)
   batch = resolved.batch(None if padded == robots else
                          list(range(robots)) + [robots - 1] * (padded - robots))
-  chunk_epochs = spec.chunk_epochs or driver.default_chunk_epochs(config)
+  chunk_epochs = driver.chunk_epochs_for(config, spec.chunk_epochs)
 
   bar = None
   if progress and not quiet:  # shown from the start: a compile can take a minute on a GPU
@@ -102,7 +104,10 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
 
   try:
     t0 = time.perf_counter()
-    state = driver.reset(config, world, batch)
+    try:
+      state = driver.reset(config, world, batch)
+    except KeyboardInterrupt as err:
+      raise KeyboardInterrupt(f"{nothing} ({err})") from None
     t_reset = time.perf_counter() - t0
     interrupts.check(nothing)
     t0 = time.perf_counter()
@@ -137,7 +142,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
       "robot_seeds": None if spec.robot_seeds is None else list(spec.robot_seeds),
       "robots": robots, "planner": spec.planner, "preset": spec.preset,
       "start": None if spec.start is None else list(spec.start),
-      "interrupted": rollout.interrupted, **described, "rate_interval_m": spec.rate_interval,
+      "interrupted": rollout.interrupted, "stalled": rollout.stalled, **described, "rate_interval_m": spec.rate_interval,
       "spec": spec.to_json(),
   }
   robot_steps = int(np.asarray(rollout.state.steps).sum())
@@ -151,8 +156,11 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
                                    rollout.state)
   if not quiet:
     print(results.summary_table(episodes))
+  kept = f"; partial results kept{' in ' + str(out) if out else ''}"
+  if rollout.stalled:
+    raise driver.Stalled(rollout.stalled + kept)
   if rollout.interrupted:
-    raise KeyboardInterrupt(f"interrupted; partial results kept{' in ' + str(out) if out else ''}")
+    raise KeyboardInterrupt(f"interrupted{'; ' + rollout.dropped if rollout.dropped else ''}{kept}")
   return result
 
 

@@ -2,13 +2,18 @@
 state and records of the same chunks. A stand-in chunk function replaces the engine, so the
 loop's bookkeeping is tested without compiling anything."""
 
+import os
+import signal
+import threading
+import time
+
 import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplore import driver
+from jaxplore import driver, interrupts
 from jaxplore.config import ConfigError
 
 
@@ -104,3 +109,65 @@ def test_a_device_count_below_one_or_not_whole_is_refused(requested):
     driver.local_devices(requested)
   assert driver.local_devices(None) == len(jax.local_devices())
   assert driver.local_devices(10**6) == len(jax.local_devices())  # at most what there is
+
+
+def stuck_after(chunks_before, sleep_s=30.0):
+  """A chunk function whose call number ``chunks_before + 1`` waits ``sleep_s`` inside the
+  compiled program without using CPU (a host callback that sleeps), as a deadlocked runtime does;
+  the calls before it are :func:`chunks`' own."""
+  compiled, calls = chunks()
+
+  def sleep(x):
+    time.sleep(sleep_s)
+    return x
+
+  blocked = jax.jit(lambda s: jax.pure_callback(sleep, s, s))
+
+  def chunk(world, params, state):
+    new_state, record = compiled(world, params, state)
+    if len(calls) > chunks_before:
+      new_state = new_state.replace(steps=blocked(new_state.steps))
+    return new_state, record
+
+  return chunk, calls
+
+
+def test_a_chunk_that_makes_no_progress_is_reported_and_the_finished_ones_kept():
+  chunk, calls = stuck_after(2)
+  t0 = time.monotonic()
+  rollout = driver.drive(chunk, None, None, start(), max_steps=100, interruptible=True,
+                         watchdog=driver.Watchdog(idle_s=1.0))
+  assert time.monotonic() - t0 < 10
+  assert "chunk 3 (from step 8) is stuck" in rollout.stalled and "no CPU" in rollout.stalled
+  assert not rollout.interrupted and rollout.steps == 8 and rollout.records.step.shape == (8, 2)
+  np.testing.assert_array_equal(rollout.state.steps, [8, 8])
+  chunk, _ = stuck_after(0)
+  with pytest.raises(driver.Stalled, match="chunk 1 .* is stuck"):
+    driver.drive(chunk, None, None, start(), max_steps=100, watchdog=driver.Watchdog(idle_s=1.0))
+
+
+def test_a_chunk_far_slower_than_the_ones_before_is_reported_on_any_device():
+  chunk, _ = stuck_after(1, sleep_s=5.0)
+  rollout = driver.drive(chunk, None, None, start(), max_steps=100, interruptible=True,
+                         watchdog=driver.Watchdog(idle_s=1e9, slow_factor=10.0, min_s=0.5))
+  assert "chunk 2 (from step 4) is stuck: it has run" in rollout.stalled and rollout.steps == 4
+
+
+def test_the_first_ctrl_c_ends_a_stuck_chunk_within_the_grace_period():
+  chunk, _ = stuck_after(1)
+  threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT)).start()
+  t0 = time.monotonic()
+  with interrupts.deferred():
+    rollout = driver.drive(chunk, None, None, start(), max_steps=100, interruptible=True,
+                           watchdog=driver.Watchdog(idle_s=1e9, grace_s=0.5))
+  assert time.monotonic() - t0 < 5
+  assert rollout.interrupted and rollout.stalled is None and rollout.steps == 4
+  assert driver.dropped_call_running()  # the dropped call still sleeps: a command exits at once
+
+
+def test_a_chunk_longer_than_the_budget_is_cut_to_it():
+  from jaxplore.config import SimConfig
+  config = SimConfig(height=10, width=10, res=0.1, max_steps=200, replan_every=8)
+  assert driver.chunk_epochs_for(config, 100000) == 25 == config.n_epochs
+  assert driver.chunk_epochs_for(config, 3) == 3
+  assert driver.chunk_epochs_for(config, None) == driver.default_chunk_epochs(config)

@@ -77,3 +77,55 @@ def test_ctrl_c_while_compiling_exits_130_and_writes_nothing(tmp_path):
   assert proc.returncode == interrupts.EXIT_CODE, proc.stderr[-3000:]
   assert "interrupted before the first step" in proc.stderr, proc.stderr[-3000:]
   assert "Traceback" not in proc.stderr and not out.exists()
+
+
+# jaxplore run whose second chunk never finishes and uses no CPU (a host callback that sleeps
+# 10 minutes, as a deadlocked runtime waits): the watchdog, or the first Ctrl-C, must end it.
+STUCK_SECOND_CHUNK = textwrap.dedent("""
+    import os, signal, sys, threading, time
+    import jax
+    from jaxplore import cli, driver
+    driver.drive.__kwdefaults__["watchdog"] = driver.Watchdog(idle_s=2.0, grace_s=1.0)
+    real = driver.compile_advance
+
+    def sleep(x):
+      time.sleep(600)
+      return x
+
+    blocked = jax.jit(lambda s: jax.pure_callback(sleep, s, s))
+
+    class Stuck:
+      def __init__(self, compiled):
+        self.compiled, self.calls = compiled, 0
+      def __getattr__(self, name):
+        return getattr(self.compiled, name)
+      def __call__(self, world, params, state):
+        self.calls += 1
+        new_state, rec = self.compiled(world, params, state)
+        if self.calls == 2:
+          if os.environ["STUCK_MODE"] == "sigint":
+            threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT)).start()
+          new_state = new_state.replace(steps=blocked(new_state.steps))
+        return new_state, rec
+
+    driver.compile_advance = lambda *args, **kwargs: Stuck(real(*args, **kwargs))
+    sys.exit(cli.main(sys.argv[1:]))
+""")
+
+
+@pytest.mark.parametrize("mode, code, says", [
+    ("watchdog", 3, "chunk 2 (from step 8) is stuck: the process has used no CPU"),
+    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 8) was still running 1 s after Ctrl-C")])
+def test_a_stuck_run_ends_in_seconds_and_keeps_the_finished_chunk(tmp_path, mode, code, says):
+  out = tmp_path / "run"
+  proc = subprocess.run(
+      [sys.executable, "-c", STUCK_SECOND_CHUNK, "run", "--world", "open", "--res", "0.5",
+       "--robots", "1", "--max-steps", "40", "--set", "r_max=2", "--devices", "1",
+       "--chunk-epochs", "1", "--replan-every", "8", "--no-progress", "--out", str(out)],
+      cwd=REPO, env=subprocess_env(STUCK_MODE=mode), capture_output=True, text=True, timeout=240)
+  assert proc.returncode == code, proc.stderr[-3000:]
+  assert says in proc.stderr and "partial results kept" in proc.stderr, proc.stderr[-3000:]
+  assert "Traceback" not in proc.stderr
+  import pandas as pd
+  curves = pd.read_parquet(out / "curves.parquet")
+  assert curves.step.max() == 8  # the first chunk's steps, written

@@ -263,7 +263,7 @@ def make_schedule(spec: SweepSpec, out: Path | None, grids: dict, chunk_size,
     size = _chunk_size_for(r.config, len(draft.rows), chunk_size, n_dev)
     group = dataclasses.replace(
         draft, chunk_size=size,
-        chunk_epochs=spec.base.chunk_epochs or driver.default_chunk_epochs(r.config),
+        chunk_epochs=driver.chunk_epochs_for(r.config, spec.base.chunk_epochs),
         max_steps=r.config.max_steps, sim_config=jsonable(dataclasses.asdict(r.config)),
         first_chunk=first)
     first += group.n_chunks
