@@ -221,7 +221,9 @@ def _sweep(args, extra) -> int:
 def _add_spec_flags(p):
   """The run settings shared by ``jaxplore run`` and ``jaxplore sweep`` (defaults: RunSpec's)."""
   from jaxplore.runspec import RunSpec
-  p.add_argument("--preset", default=None, help=f"sensor/robot preset (default {RunSpec.preset})")
+  p.add_argument("--preset", default=None,
+                 help=f"sensor/robot preset (default: the planner's paper's, where it brings one "
+                      f"(toriz for ereg, reg, srg, srt), else {RunSpec.preset})")
   p.add_argument("--res", type=float, default=None, help="planning resolution, m/cell")
   p.add_argument("--start", default=None,
                  help="x,y[,theta] start for every robot (default: random)")

@@ -257,11 +257,17 @@ class RunSpec:
   @classmethod
   def create(cls, **settings) -> RunSpec:
     """A spec from keyword settings, where None means "the default" (what the CLI passes);
-    ``robot_seeds`` without ``robots`` gives one robot per seed."""
+    ``robot_seeds`` without ``robots`` gives one robot per seed; without a ``preset``, a
+    planner that brings its paper's preset (``PlannerSpec.preset``) runs with it."""
     unknown = sorted(set(settings) - set(FIELDS))
     if unknown:
       raise ConfigError(f"unknown setting(s) {unknown}; valid: {', '.join(FIELDS)}")
     settings = {k: v for k, v in settings.items() if v is not None}
+    if "preset" not in settings:
+      from jaxplore.planners.base import planner_preset
+      preset = planner_preset(settings.get("planner", cls.planner))
+      if preset is not None:
+        settings["preset"] = preset
     seeds = settings.get("robot_seeds")
     if "robots" not in settings and hasattr(seeds, "__len__") and not isinstance(seeds, str):
       settings["robots"] = len(seeds)  # one robot per seed

@@ -200,3 +200,15 @@ def test_a_planners_text_setting_is_reachable_from_flags_toml_and_the_api(tmp_pa
   with pytest.raises(ConfigError, match=r"params\['alpha'\] must be a number"):
     RunSpec(params={"alpha": "high"})
   assert cli.main(["run", "--planner", "li2020", "--alpha", "high", "--no-progress"]) == 2
+
+
+def test_a_planner_brings_its_papers_preset_unless_one_is_named():
+  """``--planner ereg`` with no preset was refused (the default lidar is longer than REG's LSR
+  radius); the REG family now runs with Toriz's preset unless the user names another."""
+  assert RunSpec.create(planner="ereg").preset == "toriz"
+  assert RunSpec.create(planner="srt", preset="godoy_office").preset == "godoy_office"
+  assert RunSpec.create(planner="nearest_frontier").preset == RunSpec.preset == "li2020"
+  assert RunSpec.create(planner="no_such_planner").preset == "li2020"  # refused later, by name
+  from jaxplore.sweeps import _planners_preset
+  assert _planners_preset(["ereg", "reg"]) == "toriz" and _planners_preset("srg") == "toriz"
+  assert _planners_preset(["ereg", "li2020"]) is None and _planners_preset(None) is None

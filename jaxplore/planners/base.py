@@ -159,6 +159,8 @@ class PlannerSpec:
       (``Plan.cost`` in metres, each step costing at least its length), so a plan made on a
       window around the robot can be certified as the whole grid's
       (:mod:`jaxplore.planners.window`).
+    preset: the sensor/robot preset of the planner's paper (:data:`jaxplore.config.PRESETS`),
+      used when a run names none; None: the project's default.
   """
 
   name: str
@@ -174,6 +176,7 @@ class PlannerSpec:
   step_hook: Callable | None = None
   blacklist_on_arrival: bool = False
   windowed: bool = False
+  preset: str | None = None
 
   @property
   def has_memory(self) -> bool:
@@ -245,7 +248,7 @@ def register(name: str, defaults: dict | None = None, summary: str = "", *, sett
              needs_pose_graph: bool = False, init_memory: Callable | None = None,
              commits: bool = False,
              step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
-             windowed: bool = False):
+             windowed: bool = False, preset: str | None = None):
   """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`)."""
   if settings is not None and not (dataclasses.is_dataclass(settings) and
                                    settings.__dataclass_params__.frozen):
@@ -257,10 +260,17 @@ def register(name: str, defaults: dict | None = None, summary: str = "", *, sett
         validate=validate, needs_entropy_map=needs_entropy_map, needs_pose_graph=needs_pose_graph,
         init_memory=init_memory,
         commits=commits, step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival,
-        windowed=windowed)
+        windowed=windowed, preset=preset)
     return fn
 
   return wrap
+
+
+def planner_preset(name) -> str | None:
+  """The preset a registered planner brings (:attr:`PlannerSpec.preset`); None for an unknown
+  name (refused later, where the planner is looked up)."""
+  spec = _REGISTRY.get(name) if isinstance(name, str) else None
+  return None if spec is None else spec.preset
 
 
 def unregister(name: str) -> None:

@@ -637,8 +637,9 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
 
 
 SETTINGS = Settings()
+# Their LSR radius R is the sensor's range: Toriz & Sánchez's 4 m lidar is theirs.
 _COMMON = dict(defaults=DEFAULTS, settings=SETTINGS, validate=validate, init_memory=init_memory,
-               commits=True)
+               commits=True, preset="toriz")
 
 
 @base.register("ereg", summary="Toriz & Sánchez's Extended REG: deterministic frontier hierarchy, "

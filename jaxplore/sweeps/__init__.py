@@ -67,6 +67,14 @@ class SweepResult:
 
 
 @interrupts.deferred()
+def _planners_preset(planner):
+  """The preset the sweep's planners all bring (``PlannerSpec.preset``), or None."""
+  from jaxplore.planners.base import planner_preset
+  names = [planner] if planner is None or isinstance(planner, str) else list(planner)
+  presets = {planner_preset(name) for name in names} if names != [None] else {None}
+  return presets.pop() if len(presets) == 1 else None
+
+
 def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False, *, random=None,
           samples=None, random_seed=None, worlds=None, planners=None, chunk_size=None, resume=None,
           config=None, progress=True, devices=None, distributed=False, **run_kwargs) -> SweepResult:
@@ -154,7 +162,9 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
       # all of them: hold it now, while they are in step, not after chunks of unequal length.
       execute.barrier("jaxplore-sweep-resume", n_processes)
     else:
-      base = RunSpec.create(**{k: explicit.get(k) for k in RUN_KEYS})
+      shared = {k: explicit.get(k) for k in RUN_KEYS}
+      shared["preset"] = shared["preset"] or _planners_preset(explicit["planner"])
+      base = RunSpec.create(**shared)
       spec = make_spec(explicit["grid"], explicit["random"], explicit["samples"],
                        explicit["random_seed"], explicit["seeds"], explicit["world"],
                        explicit["planner"], base, grids)

@@ -115,11 +115,11 @@ def test_a_lidar_longer_than_the_lsr_radius_is_refused_with_belief_arcs():
   stopped at 12-80 % of lab. Refused before compute, naming the numbers and the ways out, each
   of which resolves."""
   with pytest.raises(ConfigError, match=r"r_max = 15 m is longer than the LSR radius R = 4 m"):
-    runner.prepare(world="open", res=0.5, planner="ereg", robots=2)
-  runner.prepare(world="open", res=0.5, planner="ereg", robots=2, preset="toriz")
-  runner.prepare(world="open", res=0.5, planner="ereg", robots=2,
+    runner.prepare(world="open", res=0.5, planner="ereg", robots=2, preset="li2020")
+  runner.prepare(world="open", res=0.5, planner="ereg", robots=2)  # toriz, the planner's own
+  runner.prepare(world="open", res=0.5, planner="ereg", robots=2, preset="li2020",
                  planner_params={"belief_arcs": False})
-  runner.prepare(world="open", res=0.5, planner="ereg", robots=2,
+  runner.prepare(world="open", res=0.5, planner="ereg", robots=2, preset="li2020",
                  planner_params={"R": 15.0, "max_radius": 15.0})
 
 
