@@ -24,6 +24,7 @@ import pandas as pd
 
 from jaxplore import results
 from jaxplore.config import ConfigError
+from jaxplore.errors import check_writable
 from jaxplore.resolve import config_difference, resolve
 from jaxplore.runspec import SIM_PARAMS, RunSpec
 
@@ -446,6 +447,8 @@ def animate(run_dir, robots=(0,), out=None, every=None, fps: float = 8.0, progre
   run_dir = Path(run_dir)
   if out is not None:
     _writer_name(Path(out))  # refuse a bad file name before the replay
+  # and a place it cannot be written (the replay takes seconds to minutes)
+  check_writable(run_dir if out is None else out, "the animation's folder" if out is None else "--out")
   if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
     raise ConfigError(f"fps must be a positive number, got {fps!r}")
   replay = resimulate(run_dir, robots, every=every, progress=progress)

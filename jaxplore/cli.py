@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 
 def _number_or_text(value: str, text_allowed: bool):
@@ -26,15 +27,16 @@ def _number_or_text(value: str, text_allowed: bool):
 
 
 def _key_values(items, what, text_allowed=False):
+  from jaxplore.config import ConfigError
   out = {}
   for item in items or []:
     if "=" not in item:
-      raise SystemExit(f"jaxplore: error: {what} takes NAME=VALUE, got {item!r}")
+      raise ConfigError(f"{what} takes NAME=VALUE, got {item!r}")
     name, value = item.split("=", 1)
     try:
       out[name.strip()] = _number_or_text(value, text_allowed)
     except ValueError:
-      raise SystemExit(f"jaxplore: error: {what} {name}: {value!r} is not a number") from None
+      raise ConfigError(f"{what} {name}: {value!r} is not a number") from None
   return out
 
 
@@ -89,23 +91,27 @@ STALLED_EXIT_CODE = 3
 
 def _reporting_errors(compute):
   """``(compute(), 0)``; a bad setting or map prints ``jaxplore: error: ...`` and gives exit code
-  2, Ctrl-C (results already written are kept) 130, a stalled run
-  (:class:`jaxplore.driver.Watchdog`; the results of the finished chunks written) 3. Where a
-  compiled call given up on still runs, the process ends at once: a normal interpreter exit
-  would wait for it."""
-  from jaxplore import driver
+  2, results that could not be written after the compute 1 (saying what was written), Ctrl-C
+  (results already written are kept) 130, a stalled run (:class:`jaxplore.driver.Watchdog`;
+  the results of the finished chunks written) 3. Where a compiled call given up on still runs,
+  the process ends at once: a normal interpreter exit would wait for it."""
+  from jaxplore import driver, interrupts
   from jaxplore.config import ConfigError
+  from jaxplore.errors import OutputError
   from jaxplore.maps import MapError
   try:
     return compute(), 0
   except (ConfigError, MapError) as err:
     print(f"jaxplore: error: {err}", file=sys.stderr)
     return None, 2
+  except OutputError as err:
+    print(f"jaxplore: error: {err}", file=sys.stderr)
+    return None, 1
   except (driver.Stalled, KeyboardInterrupt) as err:
     stalled = isinstance(err, driver.Stalled)
     print(f"jaxplore: {'error: ' if stalled else ''}{err or 'interrupted'}", file=sys.stderr,
           flush=True)
-    code = STALLED_EXIT_CODE if stalled else 130
+    code = STALLED_EXIT_CODE if stalled else interrupts.exit_code()
     if driver.dropped_call_running():
       sys.stdout.flush()
       os._exit(code)
@@ -262,9 +268,26 @@ def _add_spec_flags(p):
   p.add_argument("--no-progress", action="store_true")
 
 
+class _Parser(argparse.ArgumentParser):
+  """An argument parser whose ``run`` and ``sweep`` help ends with the registered planners.
+
+  The registry is imported only when the help is shown: importing the planners starts JAX,
+  which must wait until ``--devices`` has set the host device count."""
+
+  def format_help(self):
+    text = super().format_help()
+    if self.prog.split()[-1] not in ("run", "sweep"):
+      return text
+    from jaxplore.planners.base import get_planner, planner_names
+    rows = [f"  {name:<18} {get_planner(name).summary}" for name in planner_names()]
+    return text + "\nplanners (--planner NAME):\n" + "\n".join(rows) + "\n"
+
+
 def build_parser() -> argparse.ArgumentParser:
-  parser = argparse.ArgumentParser(prog="jaxplore", description=__doc__.splitlines()[0])
-  sub = parser.add_subparsers(dest="command", required=True)
+  parser = _Parser(prog="jaxplore", description="Batched exploration and active-SLAM simulator: "
+                   "run a batch of robots, sweep settings, list worlds, redraw figures, animate "
+                   "a run. 'jaxplore COMMAND --help' for each command.")
+  sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
   run = sub.add_parser("run", help="run a batch of robots exploring a world",
                        description="Any simulator parameter or planner weight is also a flag: "
@@ -351,13 +374,22 @@ def main(argv=None) -> int:
   if args.command == "maps":
     from jaxplore.maps import MapError, load_world, render_png, world_table
     if args.render:
+      from jaxplore.errors import ConfigError, check_writable
       try:
+        if args.out is not None and not args.out.lower().endswith(".png"):
+          raise ConfigError(f"--out {args.out!r}: the rendering is a PNG; give a .png file")
         grid = load_world(args.render, res=args.res)
-      except MapError as err:
+        out = args.out or f"{grid.name}.png"
+        check_writable(out, "--out")
+      except (ConfigError, MapError) as err:
         print(f"jaxplore: error: {err}", file=sys.stderr)
         return 2
-      out = args.out or f"{grid.name}.png"
-      render_png(grid, out)
+      try:
+        Path(out).absolute().parent.mkdir(parents=True, exist_ok=True)
+        render_png(grid, out)
+      except OSError as err:
+        print(f"jaxplore: error: could not write {out!r}: {err.strerror or err}", file=sys.stderr)
+        return 1
       print(f"wrote {out}")
       return 0
     rows = world_table()

@@ -431,6 +431,9 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *, pres
   limit = max(math.hypot(*world_shape) * res, LENGTH_LIMIT_M)
   # Lengths that size buffers are checked before anything is sized from them.
   check_length("r_max", params.r_max, limit, "the lidar's buffers")
+  r_max_all = np.asarray(params.r_max, np.float64)
+  if np.any(r_max_all <= 0):  # checked here: R_e is derived from it below
+    raise ConfigError(f"parameter r_max must be > 0, got {shown(r_max_all, r_max_all <= 0)}")
   check_length("r_robot", params.r_robot, limit, "the robot's inflation kernels")
   check_length("loop_radius", params.loop_radius, limit, "the loop-closure line-of-sight samples")
   check_length("alpha", params.alpha, math.inf, "")

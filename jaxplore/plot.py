@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from jaxplore.errors import ConfigError  # noqa: E402
+from jaxplore.errors import ConfigError, check_writable  # noqa: E402
 
 
 def _extent(shape, res, origin):
@@ -128,6 +128,7 @@ def run_figures(run_dir) -> list[Path]:
   run_dir = Path(run_dir)
   if not run_dir.is_dir():
     raise ConfigError(f"{str(run_dir)!r} is not a folder (give a jaxplore run or sweep --out)")
+  check_writable(run_dir, "the results folder")
   missing = [n for n in ("curves.parquet", "maps.npz") if not (run_dir / n).is_file()]
   if missing:
     unfinished = " (an unfinished sweep: jaxplore sweep --resume it)" if any(

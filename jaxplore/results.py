@@ -24,6 +24,7 @@ import pandas as pd
 
 from jaxplore import metrics, sim
 from jaxplore.config import ConfigError, SimConfig
+from jaxplore.errors import OutputError, check_writable
 from jaxplore.maps import GridMap
 
 SHOWN_ROBOTS = 4  # robots whose final belief (and planner memory) a results folder keeps
@@ -186,6 +187,7 @@ def check_run_out(out) -> Path | None:
   out = Path(out)
   if out.exists() and not out.is_dir():
     raise ConfigError(f"--out {str(out)!r} is a file, not a folder; choose another --out")
+  check_writable(out, "--out")
   if out.is_dir():
     if is_sweep_folder(out):
       raise ConfigError(f"--out {str(out)!r} holds a sweep (jaxplore sweep --out); a run would mix "
@@ -211,15 +213,25 @@ def write_run(out: Path, config: dict, timing: dict, episodes: pd.DataFrame, cur
   (when the planner keeps a memory) and the figures."""
   from jaxplore import plot
   out = Path(out)
-  out.mkdir(parents=True, exist_ok=True)
-  write_json(out / "config.json", config)
-  write_json(out / "timing.json", timing)
-  write_table(out / "episodes.parquet", episodes)
-  write_table(out / "curves.parquet", curves)
-  write_maps(out / "maps.npz", grid, state.logodds)
-  if write_memory(out / "memory.npz", getattr(state, "memory", None)) is None:
-    (out / "memory.npz").unlink(missing_ok=True)  # left by an earlier run with another planner
-  plot.run_figures(out)
+
+  def memory():
+    if write_memory(out / "memory.npz", getattr(state, "memory", None)) is None:
+      (out / "memory.npz").unlink(missing_ok=True)  # left by an earlier run with another planner
+
+  steps = (("the folder", lambda: out.mkdir(parents=True, exist_ok=True)),
+           ("config.json", lambda: write_json(out / "config.json", config)),
+           ("timing.json", lambda: write_json(out / "timing.json", timing)),
+           ("episodes.parquet", lambda: write_table(out / "episodes.parquet", episodes)),
+           ("curves.parquet", lambda: write_table(out / "curves.parquet", curves)),
+           ("maps.npz", lambda: write_maps(out / "maps.npz", grid, state.logodds)),
+           ("memory.npz", memory), ("the figures", lambda: plot.run_figures(out)))
+  for k, (name, write) in enumerate(steps):
+    try:
+      write()
+    except OSError as err:
+      done = ", ".join(n for n, _ in steps[1:k]) or "nothing"
+      raise OutputError(f"could not write {name} in {str(out)!r} ({err.strerror or err}): "
+                        f"written: {done}; missing: {', '.join(n for n, _ in steps[k:])}") from None
   return out
 
 

@@ -90,10 +90,12 @@ def parse_start(start) -> tuple[float, float, float] | None:
 
 
 def _value(value, what: str, text_allowed: bool = False):
-  """A setting's value: a finite number, a bool (a planner's static switch), one number per
-  robot (a tuple), or (``text_allowed``: a planner's static setting, such as li2020's
-  ``region``, which the planner's settings check) a string."""
+  """A setting's value: a finite number, one number per robot (a tuple), or (``text_allowed``:
+  a planner's table, whose settings then check it) a bool (a static switch) or a string (such
+  as li2020's ``region``)."""
   if isinstance(value, (bool, np.bool_)):
+    if not text_allowed:  # the simulator has no switch among its parameters: true is no length
+      raise ConfigError(f"{what} must be a number, got {value!r}")
     return bool(value)
   if isinstance(value, str) and text_allowed:
     return value
@@ -399,6 +401,7 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
 
   def typed(key, kinds, what):
     value = data[key]
+    kinds = kinds if isinstance(kinds, tuple) else (kinds,)
     if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
       raise ConfigError(f"{where}: {key} must be {what}, got {value!r}")
     return value

@@ -80,7 +80,8 @@ def test_ctrl_c_while_compiling_exits_130_and_writes_nothing(tmp_path):
 
 
 # jaxplore run whose second chunk never finishes and uses no CPU (a host callback that sleeps
-# 10 minutes, as a deadlocked runtime waits): the watchdog, or the first Ctrl-C, must end it.
+# 10 minutes, as a deadlocked runtime waits): the watchdog, the first Ctrl-C or a SIGTERM (a
+# batch scheduler's stop: it used to exit 143 with nothing written) must end it, results kept.
 STUCK_SECOND_CHUNK = textwrap.dedent("""
     import os, signal, sys, threading, time
     import jax
@@ -103,8 +104,9 @@ STUCK_SECOND_CHUNK = textwrap.dedent("""
         self.calls += 1
         new_state, rec = self.compiled(world, params, state)
         if self.calls == 2:
-          if os.environ["STUCK_MODE"] == "sigint":
-            threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT)).start()
+          if os.environ["STUCK_MODE"] != "watchdog":
+            sent = getattr(signal, os.environ["STUCK_MODE"].upper())
+            threading.Timer(1.0, os.kill, (os.getpid(), sent)).start()
           new_state = new_state.replace(steps=blocked(new_state.steps))
         return new_state, rec
 
@@ -115,7 +117,8 @@ STUCK_SECOND_CHUNK = textwrap.dedent("""
 
 @pytest.mark.parametrize("mode, code, says", [
     ("watchdog", 3, "chunk 2 (from step 8) is stuck: the process has used no CPU"),
-    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 8) was still running 1 s after Ctrl-C")])
+    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 8) was still running 1 s after Ctrl-C"),
+    ("sigterm", 143, "SIGTERM received: stopping at the next safe point")])
 def test_a_stuck_run_ends_in_seconds_and_keeps_the_finished_chunk(tmp_path, mode, code, says):
   out = tmp_path / "run"
   proc = subprocess.run(

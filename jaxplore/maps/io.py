@@ -88,8 +88,9 @@ def load_map(yaml_path: str | os.PathLike, *, name: str | None = None,
     raise MapError(f"{where}: resolution must be positive, got {resolution!r}")
   origin = meta["origin"]
   if (not isinstance(origin, (list, tuple)) or len(origin) != 3
-      or not all(_is_number(value) for value in origin)):
-    raise MapError(f"{where}: origin must be a list [x, y, yaw] of numbers, got {origin!r}")
+      or not all(_is_number(value) and math.isfinite(value) for value in origin)):
+    raise MapError(f"{where}: origin must be a list [x, y, yaw] of finite numbers, "
+                   f"got {origin!r}")
   if abs(float(origin[2])) > _EPS:
     raise MapError(f"{where}: origin yaw must be 0 (rotated maps are not supported), "
                    f"got {origin[2]!r}")

@@ -204,6 +204,9 @@ def load_world(spec: str | os.PathLike, res: float | None = None) -> GridMap:
     MapError: ``spec`` is neither a built-in world nor a map file, or the map cannot be
       loaded or resampled.
   """
+  if res is not None and not (isinstance(res, (int, float, np.integer, np.floating))
+                              and np.isfinite(res) and res > 0):
+    raise MapError(f"res must be a positive number of metres per cell, got {res!r}")
   if isinstance(spec, str) and spec in WORLDS:
     return get_world(spec, res)
   path = Path(spec)

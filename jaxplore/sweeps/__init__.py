@@ -35,6 +35,7 @@ import pandas as pd
 
 from jaxplore import driver, interrupts, results
 from jaxplore.config import ConfigError
+from jaxplore.errors import check_writable
 from jaxplore.memory import MEMORY_FRACTION, fit_chunk
 from jaxplore.runspec import SHARED, RunSpec, merge_settings
 from jaxplore.sweeps import assemble, execute, schedule as schedules
@@ -143,6 +144,8 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
   if config is not None:
     explicit = merge_settings(config if isinstance(config, dict) else load_config(config), explicit)
   out = None if explicit["out"] is None else Path(explicit["out"])
+  if out is not None:
+    check_writable(out, "--resume" if resume is not None else "--out")
 
   process, n_processes = execute.distributed() if distributed else (0, 1)
   if n_processes > 1 and out is None:

@@ -268,6 +268,8 @@ def test_no_free_cell(tmp_path):
     ({"resolution": "fine"}, "resolution must be a number"),
     ({"origin": [0.0, 0.0, 0.5]}, "yaw must be 0"),
     ({"origin": [0.0, 0.0]}, "origin must be a list"),
+    ({"origin": [float("nan"), 0.0, 0.0]}, "origin must be a list .* of finite numbers"),
+    ({"origin": [0.0, float("inf"), 0.0]}, "origin must be a list .* of finite numbers"),
     ({"negate": 2}, "negate must be 0 or 1"),
     ({"mode": "scale"}, "mode 'scale' is not supported"),
 ])

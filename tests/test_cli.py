@@ -1,0 +1,90 @@
+"""The command line as a user meets it: whole help texts, and bad input or an unwritable output
+refused before any compute with a message and exit code 2 (1 where results could not be written
+after the compute), never a traceback."""
+
+import os
+
+import pandas as pd
+import pytest
+
+from jaxplore import cli, results
+from jaxplore.errors import ConfigError, check_writable
+from jaxplore.planners import planner_names
+
+RUN = ["run", "--world", "open", "--res", "0.5", "--robots", "1", "--max-steps", "8",
+       "--set", "r_max=2", "--devices", "1", "--no-progress"]
+
+
+def test_the_help_is_whole_and_run_help_lists_every_planner(capsys):
+  with pytest.raises(SystemExit) as exited:
+    cli.main(["--help"])
+  text = capsys.readouterr().out
+  assert exited.value.code == 0 and "``" not in text and "for each command." in text
+  for command in ("run", "sweep"):
+    with pytest.raises(SystemExit):
+      cli.main([command, "--help"])
+    text = capsys.readouterr().out
+    assert "planners (--planner NAME):" in text
+    assert all(f"  {name} " in text for name in planner_names())
+
+
+@pytest.mark.parametrize("flags, says", [
+    (["--set", "r_max"], "--set takes NAME=VALUE, got 'r_max'"),
+    (["--set", "r_max=0"], "parameter r_max must be > 0, got 0"),  # named r_e before
+    (["--planner-set", "k1"], "--planner-set takes NAME=VALUE")])
+def test_bad_flags_exit_2_naming_the_problem(capsys, flags, says):
+  assert cli.main(RUN + flags) == 2
+  err = capsys.readouterr().err
+  assert err.startswith("jaxplore: error: ") and says in err, err
+
+
+def test_toml_values_of_the_wrong_type_are_refused_by_name(tmp_path, capsys):
+  for text, says in (("max_steps = true", "max_steps must be a positive integer, got True"),
+                     ("robots = true", "robots must be a positive integer, got True"),
+                     ("[set]\nr_max = true", "[set] r_max must be a number, got True")):
+    path = tmp_path / "run.toml"
+    path.write_text(text + "\n")
+    assert cli.main(RUN[:1] + ["--config", str(path), "--no-progress"]) == 2, text
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--render", "lab", "--res", "0"], "res must be a positive number of metres per cell"),
+    (["--render", "lab", "--out", "lab.txt"], "the rendering is a PNG; give a .png file"),
+    (["--render", "lab", "--out", "afile/lab.png"], "afile' is a file, not a folder")])
+def test_maps_render_refuses_bad_input(tmp_path, monkeypatch, capsys, args, says):
+  monkeypatch.chdir(tmp_path)
+  (tmp_path / "afile").write_text("")
+  assert cli.main(["maps"] + args) == 2
+  assert says in capsys.readouterr().err
+
+
+def test_an_output_under_a_file_or_unwritable_is_refused_before_compute(tmp_path, monkeypatch,
+                                                                          capsys):
+  (tmp_path / "afile.txt").write_text("")
+  assert cli.main(RUN + ["--out", str(tmp_path / "afile.txt" / "sub")]) == 2
+  assert "afile.txt' is a file, not a folder" in capsys.readouterr().err
+  # a read-only filesystem (root may write anywhere else: access() is what says EROFS)
+  real = os.access
+  monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(tmp_path)
+                      else real(p, mode))
+  with pytest.raises(ConfigError, match="is not writable"):
+    check_writable(tmp_path / "new" / "run", "--out")
+  assert cli.main(["plot", str(tmp_path)]) == 2
+  assert "is not writable" in capsys.readouterr().err
+
+
+def test_a_disk_that_fills_up_keeps_what_was_written_and_says_what_is_missing(tmp_path,
+                                                                             monkeypatch, capsys):
+  def full(*args, **kwargs):
+    raise OSError(28, "No space left on device")
+
+  monkeypatch.setattr(results, "write_maps", full)
+  out = tmp_path / "run"
+  assert cli.main(RUN + ["--out", str(out)]) == 1
+  err = capsys.readouterr().err
+  assert "could not write maps.npz" in err and "No space left on device" in err, err
+  assert "written: config.json, timing.json, episodes.parquet, curves.parquet" in err
+  assert "missing: maps.npz, memory.npz, the figures" in err and "Traceback" not in err
+  assert len(pd.read_parquet(out / "episodes.parquet")) == 1

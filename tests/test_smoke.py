@@ -1,0 +1,41 @@
+"""Every registered planner runs a few robots to the end on the default devices.
+
+The command line makes one host device per core; CI has two cores, so two devices here. Three
+planners (gpbo, ahmed, ags) used to hang forever at four robots there (two per device: jaxlib's
+batched LAPACK kernels deadlocked XLA:CPU's thread pool, see ``jaxplore.linalg``); the nine
+others finished. A hang fails this test at its time limit instead of stalling CI.
+"""
+
+import subprocess
+import sys
+import textwrap
+
+from conftest import REPO, subprocess_env
+
+EVERY_PLANNER = textwrap.dedent("""
+    import sys, time
+    from jaxplore import cli
+    from jaxplore.planners import planner_names
+    for name in planner_names():
+      t0 = time.perf_counter()
+      code = cli.main(["run", "--world", "open", "--res", "0.5", "--planner", name, "--robots",
+                       "4", "--seed", "5", "--max-steps", "40", "--no-progress"])
+      print(f"SMOKE {name} exit {code} in {time.perf_counter() - t0:.1f} s", flush=True)
+      if code:
+        sys.exit(code)
+""")
+
+
+def test_every_planner_runs_four_robots_on_two_host_devices():
+  env = subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2")
+  try:
+    proc = subprocess.run([sys.executable, "-c", EVERY_PLANNER], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=540)
+  except subprocess.TimeoutExpired as hung:
+    done = [line for line in (hung.stdout or b"").decode().splitlines() if "SMOKE" in line]
+    raise AssertionError(f"hung after {len(done)} planners: {done}") from None
+  finished = [line for line in proc.stdout.splitlines() if line.startswith("SMOKE")]
+  assert proc.returncode == 0, (finished, proc.stderr[-3000:])
+  from jaxplore.planners import planner_names
+  assert len(finished) == len(planner_names()) >= 12, finished
+  assert "on 2 x cpu" in proc.stdout  # sharded over both devices
