@@ -88,3 +88,34 @@ def test_a_disk_that_fills_up_keeps_what_was_written_and_says_what_is_missing(tm
   assert "written: config.json, timing.json, episodes.parquet, curves.parquet" in err
   assert "missing: maps.npz, memory.npz, the figures" in err and "Traceback" not in err
   assert len(pd.read_parquet(out / "episodes.parquet")) == 1
+
+
+SWEEP = ["sweep", "--res", "0.5", "--seeds", "1", "--max-steps", "8", "--devices", "1", "--quiet"]
+
+
+@pytest.mark.parametrize("flags, says", [
+    (["--world", "open", "open"], "worlds repeat: ['open', 'open']"),
+    (["--world", "open", "--grid", "range_noise=0.1,0.1"], "grid 'range_noise' repeats a value"),
+    (["--world", "open", "--planner", "li2020", "--random", "k1=0.2:0.2", "--samples", "2"],
+     "low 0.2 is not below high 0.2 (one value"),
+    (["--world", "open", "--planner", "li2020", "--random", "k1=0:0.5", "--samples", "2",
+      "--random-seed", "-1"], "random_seed must be an integer in [0, 2**32), got -1")])
+def test_a_sweep_refuses_repeats_empty_ranges_and_bad_seeds(capsys, flags, says):
+  """Repeated planners and seeds were refused, but repeated worlds and grid values gave
+  duplicate rows, an empty random range one row recorded as two samples, and a negative random
+  seed a NumPy traceback."""
+  assert cli.main(SWEEP + flags) == 2
+  err = capsys.readouterr().err
+  assert says in err and "Traceback" not in err, err
+
+
+def test_distributed_without_a_coordinator_says_what_to_set():
+  import subprocess
+  import sys
+  from conftest import REPO, subprocess_env
+  env = {k: v for k, v in subprocess_env().items() if not k.startswith("JAX_")}
+  proc = subprocess.run([sys.executable, "-m", "jaxplore"] + SWEEP + ["--world", "open",
+                                                                      "--distributed"],
+                        cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+  assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+  assert "--distributed" in proc.stderr and "JAX_COORDINATOR_ADDRESS" in proc.stderr

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from jaxplore import driver, interrupts, memory, results
+from jaxplore.errors import ConfigError
 from jaxplore.resolve import Resolved
 from jaxplore.sweeps.schedule import Chunk, Group, Schedule, chunk_paths
 
@@ -217,7 +218,13 @@ def distributed() -> tuple[int, int]:
       kwargs["num_processes"] = int(os.environ["JAX_NUM_PROCESSES"])
     if os.environ.get("JAX_PROCESS_ID"):
       kwargs["process_id"] = int(os.environ["JAX_PROCESS_ID"])
-    jax.distributed.initialize(**kwargs)
+    try:
+      jax.distributed.initialize(**kwargs)
+    except ValueError as err:  # no coordinator in the environment, nor a cluster JAX detects
+      raise ConfigError(f"--distributed: {err} Set JAX_COORDINATOR_ADDRESS=host:port, "
+                        "JAX_NUM_PROCESSES and JAX_PROCESS_ID in every process (SLURM, Open MPI, "
+                        "Kubernetes and Cloud TPU set them for JAX), or run without "
+                        "--distributed") from None
   return jax.process_index(), jax.process_count()
 
 

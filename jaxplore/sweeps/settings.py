@@ -141,6 +141,8 @@ def normalise_grid(grid) -> dict[str, tuple[float | str, ...]]:
         raise ConfigError(f"grid {name!r} repeats a value: {list(values)}")
     else:
       values = tuple(number(v, f"grid value of {name!r}") for v in values)
+      if len(set(values)) != len(values):
+        raise ConfigError(f"grid {name!r} repeats a value: {list(values)}")
     out[str(name)] = values
   return out
 
@@ -186,8 +188,9 @@ def normalise_random(random) -> dict[str, RandomRange]:
     log = spec.get("log", False)
     if not isinstance(log, bool):
       raise ConfigError(f"random {name!r}: log must be true or false, got {log!r}")
-    if not low <= high:
-      raise ConfigError(f"random {name!r}: low {low} is above high {high}")
+    if not low < high:
+      raise ConfigError(f"random {name!r}: low {low} is not below high {high}" + (
+          " (one value: give it as a fixed setting or a grid of one)" if low == high else ""))
     if log and low <= 0:
       raise ConfigError(f"random {name!r}: a log range needs low > 0, got {low}")
     out[str(name)] = RandomRange(low, high, log)
@@ -291,11 +294,14 @@ def make_spec(grid=None, random=None, samples=None, random_seed=None, seeds=None
   worlds = _as_list(RunSpec.world if worlds is None else worlds)
   if not worlds:
     raise ConfigError("a sweep needs at least one world")
+  named = [str(w) for w in worlds if isinstance(w, (str, os.PathLike))]
+  if len(set(named)) != len(named):
+    raise ConfigError(f"worlds repeat: {named}")
   return SweepSpec(
       worlds=tuple(world_entry(w, i, grids) for i, w in enumerate(worlds)),
       planners=tuple(planners), seeds=seeds_of(DEFAULT_SEEDS if seeds is None else seeds),
       grid=grid, random=random, samples=None if not random else int(samples),
-      random_seed=int(random_seed or 0), base=base)
+      random_seed=seed_value(random_seed or 0, "random_seed"), base=base)
 
 
 # --------------------------------------------------------------------------- TOML
