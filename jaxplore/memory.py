@@ -6,6 +6,8 @@
 
 from __future__ import annotations
 
+import functools
+import math
 import os
 import sys
 
@@ -18,6 +20,8 @@ def _largest_part(config: SimConfig) -> str:
   """What makes one robot's estimate large, naming the setting behind it."""
   cells = config.height * config.width
   parts = {
+      f"the planner's memory ({config.planner}'s settings)":
+          PLANNER_MEMORY_COPIES * planner_memory_bytes(config),
       f"the {config.height}x{config.width} grid at {config.res:g} m/cell (--res)":
           cells * (GRID_BYTES_PER_CELL + ROBOT_BYTES_PER_CELL),
       f"the per-step records of max_steps={config.max_steps}": config.max_steps * 10 * 4,
@@ -46,6 +50,27 @@ LOCKSTEP_BYTES_PER_CELL = 32
 LOCKSTEP_PLANNING_BYTES_PER_CELL = 128
 
 
+@functools.lru_cache(maxsize=64)
+def planner_memory_bytes(config: SimConfig) -> int:
+  """Bytes of one robot's planner memory (``PlannerSpec.init_memory``), from its shapes alone
+  (``jax.eval_shape``: nothing is computed or allocated); 0 for a planner without memory."""
+  import jax
+  from jaxplore.config import make_params
+  from jaxplore.planners.base import get_planner
+  from jaxplore.robot import planner_context
+  spec = get_planner(config.planner)
+  if not spec.has_memory:
+    return 0
+  params = make_params(res=config.res, planner=dict(spec.defaults))
+  shapes = jax.eval_shape(lambda p: spec.initial_memory(planner_context(config), p), params)
+  return sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+
+
+# A planner's memory is held three times: in the state, in the next state of the compiled loop,
+# and in the host copy of the final state.
+PLANNER_MEMORY_COPIES = 3
+
+
 def estimate_bytes(config: SimConfig, robots: int) -> int:
   """Peak memory of a run: a per-batch part (the world, planning temporaries, the tables) and,
   per robot, its maps, per-step records and lidar buffers (with ``lockstep``, its maps and the
@@ -63,10 +88,12 @@ def estimate_bytes(config: SimConfig, robots: int) -> int:
   if config.strategy == "lockstep":
     from jaxplore.planning import lockstep_plan_chunk
     planning = lockstep_plan_chunk(config, robots) * cells * LOCKSTEP_PLANNING_BYTES_PER_CELL
-    per_robot = cells * LOCKSTEP_BYTES_PER_CELL + records
+    per_robot = (cells * LOCKSTEP_BYTES_PER_CELL + records
+                 + PLANNER_MEMORY_COPIES * planner_memory_bytes(config))
     return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + planning + robots * per_robot
   lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
-  per_robot = cells * ROBOT_BYTES_PER_CELL + records + lidar
+  per_robot = (cells * ROBOT_BYTES_PER_CELL + records + lidar
+               + PLANNER_MEMORY_COPIES * planner_memory_bytes(config))
   return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + robots * per_robot
 
 
@@ -176,4 +203,4 @@ def check_compiled(compiled, config: SimConfig, robots: int, n_dev: int = 1) -> 
 
 
 __all__ = ["MEMORY_FRACTION", "available_bytes", "check_compiled", "check_fits",
-           "compiled_bytes", "estimate_bytes", "fit_chunk"]
+           "compiled_bytes", "estimate_bytes", "fit_chunk", "planner_memory_bytes"]

@@ -119,3 +119,17 @@ def test_distributed_without_a_coordinator_says_what_to_set():
                         cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
   assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
   assert "--distributed" in proc.stderr and "JAX_COORDINATOR_ADDRESS" in proc.stderr
+
+
+@pytest.mark.parametrize("planner, setting, says", [
+    ("ahmed", "max_candidates=0", "ahmed: setting max_candidates = 0 must be at least 1"),
+    ("gpbo", "n_beams=1000000000", "gpbo: n_beams = 1000000000 beams per virtual scan; at most"),
+    ("gpbo", "n_train=2.5", "setting n_train must be"),
+    ("ereg", "nodes=1000000000", "mostly for the planner's memory (ereg's settings)")])
+def test_a_planner_setting_that_cannot_work_is_refused_before_the_compile(capsys, planner,
+                                                                         setting, says):
+  """These failed inside the compiler (a gather from an empty array), after a 13 s compile, or
+  asked XLA for 2e18 bytes: the memory guard now counts the planner's memory."""
+  assert cli.main(RUN + ["--planner", planner, "--planner-set", setting]) == 2
+  err = capsys.readouterr().err
+  assert says in err, err

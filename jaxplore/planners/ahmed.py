@@ -119,6 +119,8 @@ class Settings:
 def validate(weights, params, ctx):
   """Host-side checks of the weights (probabilities, radii within the static disc)."""
   settings = ctx.settings
+  base.require_at_least_one("ahmed", settings, ("max_candidates", "max_new_nodes",
+                                                "halluc_path_cells"))
   w = {k: np.asarray(v) for k, v in weights.items()}
   for name in ("p_unknown", "p_known"):
     bad = (w[name] <= 0) | (w[name] >= 1) if name in w else False

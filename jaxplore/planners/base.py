@@ -20,6 +20,7 @@ path capacity, solver bounds, the planner's own settings); ``params`` holds the 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Callable
 
 import chex
@@ -208,9 +209,16 @@ class PlannerSpec:
       kind = type(getattr(self.settings, name))
       try:
         converted[name] = kind(value) if kind is not bool else _as_bool(value)
-      except (TypeError, ValueError):
+      except (TypeError, ValueError, OverflowError):
         raise ConfigError(f"planner {self.name!r}: setting {name} must be a {kind.__name__}, "
                           f"got {value!r}") from None
+      # A count or size fixes a shape: a fraction would be cut silently, a negative one fail
+      # inside the compiler; a length must be a number.
+      if kind is int and (converted[name] != value or converted[name] < 0):
+        raise ConfigError(f"planner {self.name!r}: setting {name} must be a whole number >= 0, "
+                          f"got {value!r}")
+      if kind is float and not math.isfinite(converted[name]):
+        raise ConfigError(f"planner {self.name!r}: setting {name} must be finite, got {value!r}")
     return dataclasses.replace(self.settings, **converted)
 
   def split_overrides(self, overrides: dict | None):
@@ -264,6 +272,15 @@ def register(name: str, defaults: dict | None = None, summary: str = "", *, sett
     return fn
 
   return wrap
+
+
+def require_at_least_one(planner: str, settings, names) -> None:
+  """Refuses static settings among ``names`` below 1: each sizes an array of the plan, which
+  would be empty (a gather from it fails inside the compiler)."""
+  bad = [f"{name} = {getattr(settings, name)}" for name in names if getattr(settings, name) < 1]
+  if bad:
+    raise ConfigError(f"{planner}: setting {', '.join(bad)} must be at least 1 (it sizes the "
+                      f"plan's arrays)")
 
 
 def planner_preset(name) -> str | None:

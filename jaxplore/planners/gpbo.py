@@ -116,8 +116,17 @@ class Settings:
       raise ConfigError("gpbo: radius_min must be > 0, radius_step and frontier_clearance >= 0")
 
 
+MAX_BEAMS = 3600  # one per 0.1°: more resolve nothing a grid map holds, and cost memory
+
+
 def validate(weights, params, ctx):
-  """Host-side check of the resolved weights."""
+  """Host-side check of the resolved weights and static settings."""
+  settings = ctx.settings
+  base.require_at_least_one("gpbo", settings, ("n_yaws", "n_radii", "max_groups", "n_train",
+                                               "n_test", "n_beams"))
+  if settings.n_beams > MAX_BEAMS:
+    raise ConfigError(f"gpbo: n_beams = {settings.n_beams} beams per virtual scan; at most "
+                      f"{MAX_BEAMS} (one per 0.1°)")
   if np.any(~np.isin(np.asarray(weights["gain_kind"]), [0.0, 1.0, 2.0])):
     raise ConfigError("gpbo: gain_kind must be 0 (entropy), 1 (known area) or 2 (free area)")
   delta = np.asarray(weights["delta"])
