@@ -313,6 +313,18 @@ def validate_params(params: Params, config: SimConfig) -> None:
   check("v_max", p.v_max, positive, "> 0")
   check("w_max", p.w_max, positive, "> 0")
   check("dt", p.dt, positive, "> 0")
+  # A step ends at its waypoint, one cell away: a longer reach would count time not driven.
+  reach = np.asarray(p.v_max, np.float64) * np.asarray(p.dt, np.float64)
+  if np.any(reach > config.res * (1 + 1e-4)):
+    raise ConfigError(f"v_max * dt = {shown(reach, reach > config.res * (1 + 1e-4))} m per step, "
+                      f"more than one cell ({config.res:g} m): a step ends at the next waypoint, "
+                      f"so the time would count travel that never happens; leave dt unset (it is "
+                      f"res / v_max) or give dt <= res / v_max")
+  half_turn = math.pi / (np.asarray(p.w_max, np.float64) * np.asarray(p.dt, np.float64))
+  if np.any(half_turn > config.max_steps):
+    raise ConfigError(f"w_max * dt = {shown(math.pi / half_turn)} rad per step: the robot could "
+                      f"not turn half a circle within its {config.max_steps} steps (dt = res / "
+                      f"v_max is {shown(p.dt)} s: is v_max = {shown(p.v_max)} m/s meant?)")
   max_ru = config.max_update_radius_cells * config.res
   check("alpha", np.asarray(p.alpha) * config.r_e, lambda a: a <= max_ru + 1e-6,
         f"such that alpha * r_e <= max_update_radius_cells * res = {max_ru:.3g} m")

@@ -8,6 +8,8 @@ Cells are (row, col); row 0 holds the lowest y.
 
 from __future__ import annotations
 
+import math
+
 import chex
 import jax
 import jax.numpy as jnp
@@ -78,15 +80,21 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
     sizes = ndimage.sum_labels(free, labels, index=np.arange(1, count + 1))
     reachable = labels == (1 + int(np.argmax(sizes)))
   start_ok = reachable & (clearance > radius)
-  if start_xy is None and start_ok.any():
-    # Random starts only where the robot can reach most of the map: the largest 8-connected
-    # component of the cells it fits in (a closet behind a door narrower than the robot is free
-    # and reachable for coverage, but a robot started there could never leave it).
-    fits, n_fits = ndimage.label(start_ok, structure=np.ones((3, 3), bool))
-    fit_sizes = ndimage.sum_labels(start_ok, fits, index=np.arange(1, n_fits + 1))
-    start_ok = fits == (1 + int(np.argmax(fit_sizes)))
   if not start_ok.any():
     raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius {r_robot} m")
+  # Where the disc's centre can go: the 8-connected component of the cells it fits in, the
+  # start's (random starts: the largest, so that no robot starts in a closet it cannot leave).
+  fits, n_fits = ndimage.label(start_ok, structure=np.ones((3, 3), bool))
+  start_label = fits[i, j] if start_xy is not None else 0
+  if start_label == 0:
+    start_label = 1 + int(np.argmax(ndimage.sum_labels(start_ok, fits, np.arange(1, n_fits + 1))))
+  centres = fits == start_label
+  if start_xy is None:
+    start_ok = centres
+  # Coverage counts the free cells the robot can come up to: within sqrt(2) (radius + 1) cells
+  # of a place its centre reaches (the corners of a room included), not a room behind a gap
+  # narrower than its disc, which it could never complete.
+  reachable = reachable & (ndimage.distance_transform_edt(~centres) <= math.sqrt(2) * (radius + 1))
   return World(occupied=jnp.asarray(grid.occupied),
                truth_framed=sensor.frame_truth(jnp.asarray(grid.occupied)), reachable=jnp.asarray(reachable),
                start_ok=jnp.asarray(start_ok), n_reachable=jnp.float32(reachable.sum()),
