@@ -275,7 +275,7 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
       xs.append(np.asarray(rec.x, np.float64))
       ys.append(np.asarray(rec.y, np.float64))
       if k % every_epochs == 0 or k == n_epochs:
-        frames.append(snapshot(state, k * per_epoch))
+        frames.append(snapshot(state, min(k * per_epoch, sim_config.max_steps)))
       if bar is not None:
         bar.update(per_epoch)
   finally:

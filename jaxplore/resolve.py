@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import posegraph, sim
+from jaxplore import memory, posegraph, sim
 from jaxplore.config import (ConfigError, Params, SimConfig, config_for, make_params,
                              validate_params)
 from jaxplore.maps import GridMap, load_world
@@ -236,6 +236,9 @@ def resolve(spec: RunSpec) -> Resolved:
   if planner.validate is not None:
     planner.validate({k: np.asarray(v) for k, v in params.planner.items()}, params,
                      sim.planner_context(config))
+  # Before the world's host-side preparation (distance transforms, labels: tens of bytes per
+  # cell), which a 20000 x 20000 map at its own resolution would take past the machine's memory.
+  memory.check_fits(config, 1)
   world = sim.make_world(grid, float(np.max(np.asarray(params.r_robot))),
                          None if spec.start is None else spec.start[:2])
   return Resolved(spec, grid, config, params, world, spec.start)

@@ -136,3 +136,26 @@ def test_a_planner_setting_that_cannot_work_is_refused_before_the_compile(capsys
   assert cli.main(RUN + ["--planner", planner, "--planner-set", setting]) == 2
   err = capsys.readouterr().err
   assert says in err, err
+
+
+def test_memory_is_checked_before_the_worlds_preparation_and_a_sweeps_listing(monkeypatch,
+                                                                             capsys):
+  """A 20000 x 20000 map at its own resolution grew past 12 GB in the world's preparation
+  (distance transforms) before the run's memory guard looked; a 5.5e9-setting sweep grid was
+  killed by the kernel while its rows were listed. Both are refused first, with the numbers."""
+  from jaxplore import memory, sim
+  monkeypatch.setattr(memory, "available_bytes", lambda: 64 << 20)
+
+  def never(*args, **kwargs):
+    raise AssertionError("the world was prepared before the memory guard")
+
+  monkeypatch.setattr(sim, "make_world", never)
+  assert cli.main(RUN) == 2
+  assert "more than 80% of the 0.1 GiB available" in capsys.readouterr().err
+  monkeypatch.setattr(memory, "available_bytes", lambda: 300 << 20)  # one robot's run fits
+  k1 = ",".join(str(k / 600) for k in range(300))
+  alpha = ",".join(str(1 + k / 300) for k in range(300))
+  assert cli.main(SWEEP + ["--world", "open", "--planner", "li2020", "--grid", f"k1={k1}",
+                           f"alpha={alpha}"]) == 2
+  err = capsys.readouterr().err
+  assert "the sweep has 9e+04 robot-episodes; listing them takes about 0.343 GiB" in err, err

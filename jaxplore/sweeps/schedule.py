@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -173,9 +174,37 @@ def _settings_of(spec: SweepSpec, planner: str, drawn) -> tuple[list[str], list[
   return grid_names + [random_names[k] for k in keep], settings
 
 
+# Host memory a sweep holds per robot-episode before its first chunk (its rows, their settings,
+# the schedule and its JSON): a 1e6-episode grid held ~4 GB and wrote a 405 MB schedule.
+ROW_BYTES = 4096
+
+
+def count_rows(spec: SweepSpec) -> int:
+  """Robot-episodes of a sweep, counted without listing them (a grid's size is a product)."""
+  total = 0
+  for planner in spec.planners:
+    planner_spec = get_planner(planner)
+    applies = [n for n in spec.grid if kind_of(n, planner_spec) is not None]
+    random_applies = any(kind_of(n, planner_spec) is not None for n in spec.random)
+    total += (math.prod(len(spec.grid[n]) for n in applies)
+              * (spec.samples if random_applies else 1) * len(spec.seeds))
+  return total * len(spec.worlds)
+
+
+def check_size(spec: SweepSpec) -> None:
+  """Refuses, before listing them, a sweep whose episodes would not fit in host memory."""
+  rows, have = count_rows(spec), memory.available_bytes()
+  if rows * ROW_BYTES > memory.MEMORY_FRACTION * have:
+    raise ConfigError(f"the sweep has {rows:.4g} robot-episodes; listing them takes about "
+                      f"{rows * ROW_BYTES / 2**30:.3g} GiB, more than "
+                      f"{memory.MEMORY_FRACTION:.0%} of the {have / 2**30:.3g} GiB available: "
+                      f"sweep fewer values, seeds or samples, or split it into several sweeps")
+
+
 def split_groups(spec: SweepSpec) -> list[Group]:
   """The groups of a sweep (rows numbered across it), before their chunks are sized: one per
   world and planner, split further by the values of every swept static setting."""
+  check_size(spec)
   drawn = random_samples(spec.random, spec.samples, spec.random_seed) if spec.random else [()]
   groups, row = [], 0
   for w in range(len(spec.worlds)):
