@@ -321,10 +321,12 @@ def validate_params(params: Params, config: SimConfig) -> None:
                       f"so the time would count travel that never happens; leave dt unset (it is "
                       f"res / v_max) or give dt <= res / v_max")
   half_turn = math.pi / (np.asarray(p.w_max, np.float64) * np.asarray(p.dt, np.float64))
-  if np.any(half_turn > config.max_steps):
-    raise ConfigError(f"w_max * dt = {shown(math.pi / half_turn)} rad per step: the robot could "
-                      f"not turn half a circle within its {config.max_steps} steps (dt = res / "
-                      f"v_max is {shown(p.dt)} s: is v_max = {shown(p.v_max)} m/s meant?)")
+  most = max(config.max_steps, 1000)
+  if np.any(half_turn > most):
+    raise ConfigError(f"w_max * dt = {shown(math.pi / half_turn)} rad per step: the robot would "
+                      f"need {shown(np.ceil(half_turn))} steps to turn half a circle, more than "
+                      f"its {config.max_steps} and 1000 (dt = res / v_max is {shown(p.dt)} s: "
+                      f"is v_max = {shown(p.v_max)} m/s meant?)")
   max_ru = config.max_update_radius_cells * config.res
   check("alpha", np.asarray(p.alpha) * config.r_e, lambda a: a <= max_ru + 1e-6,
         f"such that alpha * r_e <= max_update_radius_cells * res = {max_ru:.3g} m")

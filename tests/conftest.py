@@ -19,8 +19,19 @@ def subprocess_env(drop=("XLA_FLAGS",), **extra):
   ``PYTHONPATH``, then ``extra``."""
   env = {k: v for k, v in os.environ.items() if not k.startswith(tuple(drop))}
   env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+  cache = jax.config.jax_compilation_cache_dir  # the suite's (shared_compilation_cache)
+  if cache:  # a program another test's process compiled is loaded, not compiled again
+    env["JAX_COMPILATION_CACHE_DIR"] = str(cache)
+    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
   env.update(extra)
   return env
+
+
+def pytest_collection_modifyitems(items):
+  """The longest module first (the smoke test of every planner, ~3 minutes in a process of its
+  own): xdist hands modules out in this order, so the other worker runs the rest meanwhile
+  instead of waiting for it at the end."""
+  items.sort(key=lambda item: item.module.__name__.rsplit(".", 1)[-1] != "test_smoke")
 
 
 SHARED_MAPS = (Path(__file__).resolve().parents[1].parent / "shared" / "maps").resolve()

@@ -214,7 +214,7 @@ class PlannerSpec:
                           f"got {value!r}") from None
       # A count or size fixes a shape: a fraction would be cut silently, a negative one fail
       # inside the compiler; a length must be a number.
-      if kind is int and (converted[name] != value or converted[name] < 0):
+      if kind is int and (_as_number(value) != converted[name] or converted[name] < 0):
         raise ConfigError(f"planner {self.name!r}: setting {name} must be a whole number >= 0, "
                           f"got {value!r}")
       if kind is float and not math.isfinite(converted[name]):
@@ -246,6 +246,14 @@ def _as_bool(value) -> bool:
       return False
     raise ValueError(value)
   return bool(value)
+
+
+def _as_number(value) -> float:
+  """``value`` as a float (a text such as "4" too), or NaN."""
+  try:
+    return float(value)
+  except (TypeError, ValueError):
+    return math.nan
 
 
 _REGISTRY: dict[str, PlannerSpec] = {}
