@@ -238,7 +238,7 @@ def resolve(spec: RunSpec) -> Resolved:
                      sim.planner_context(config))
   # Before the world's host-side preparation (distance transforms, labels: tens of bytes per
   # cell), which a 20000 x 20000 map at its own resolution would take past the machine's memory.
-  memory.check_fits(config, 1)
+  memory.fit_chunk(config, 1)  # refuses where not even one robot fits
   world = sim.make_world(grid, float(np.max(np.asarray(params.r_robot))),
                          None if spec.start is None else spec.start[:2])
   return Resolved(spec, grid, config, params, world, spec.start)

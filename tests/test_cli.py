@@ -151,7 +151,7 @@ def test_memory_is_checked_before_the_worlds_preparation_and_a_sweeps_listing(mo
 
   monkeypatch.setattr(sim, "make_world", never)
   assert cli.main(RUN) == 2
-  assert "more than 80% of the 0.1 GiB available" in capsys.readouterr().err
+  assert "one robot on a 40x40 grid with max_steps=8 needs about" in capsys.readouterr().err
   monkeypatch.setattr(memory, "available_bytes", lambda: 300 << 20)  # one robot's run fits
   k1 = ",".join(str(k / 600) for k in range(300))
   alpha = ",".join(str(1 + k / 300) for k in range(300))
