@@ -3,12 +3,13 @@ refused before any compute with a message and exit code 2 (1 where results could
 after the compute), never a traceback."""
 
 import os
+import types
 
 import pandas as pd
 import pytest
 
 from jaxplore import cli, results
-from jaxplore.errors import ConfigError, check_writable
+from jaxplore.errors import ConfigError, OutputError, check_writable
 from jaxplore.planners import planner_names
 
 RUN = ["run", "--world", "open", "--res", "0.5", "--robots", "1", "--max-steps", "8",
@@ -80,17 +81,27 @@ def test_an_output_under_a_file_or_unwritable_is_refused_before_compute(tmp_path
 
 def test_a_disk_that_fills_up_keeps_what_was_written_and_says_what_is_missing(tmp_path,
                                                                              monkeypatch, capsys):
+  """Results that could not be written after the compute: what was written stays, the message
+  says what is missing, the command exits 1 without a traceback (it lost the run)."""
   def full(*args, **kwargs):
     raise OSError(28, "No space left on device")
 
   monkeypatch.setattr(results, "write_maps", full)
   out = tmp_path / "run"
-  assert cli.main(RUN + ["--out", str(out)]) == 1
+  episodes = pd.DataFrame({"robot": [0], "coverage": [0.5]})
+  write = lambda: results.write_run(out, {"sim_config": {}}, {"run_s": 1.0}, episodes,
+                                    episodes.assign(step=1), None,
+                                    types.SimpleNamespace(logodds=None, memory=None))
+  with pytest.raises(OutputError) as error:
+    write()
+  text = str(error.value)
+  assert "could not write maps.npz" in text and "No space left on device" in text, text
+  assert "written: config.json, timing.json, episodes.parquet, curves.parquet" in text
+  assert "missing: maps.npz, memory.npz, the figures" in text
+  pd.testing.assert_frame_equal(pd.read_parquet(out / "episodes.parquet"), episodes)
+  result, code = cli._reporting_errors(write)
   err = capsys.readouterr().err
-  assert "could not write maps.npz" in err and "No space left on device" in err, err
-  assert "written: config.json, timing.json, episodes.parquet, curves.parquet" in err
-  assert "missing: maps.npz, memory.npz, the figures" in err and "Traceback" not in err
-  assert len(pd.read_parquet(out / "episodes.parquet")) == 1
+  assert result is None and code == 1 and "jaxplore: error: could not write maps.npz" in err
 
 
 SWEEP = ["sweep", "--res", "0.5", "--seeds", "1", "--max-steps", "8", "--devices", "1", "--quiet"]

@@ -29,6 +29,20 @@ def test_sigint_within_deferred_sets_a_flag_and_check_raises_there():
   assert signal.getsignal(signal.SIGINT) is before and not interrupts.requested()
 
 
+def test_sigterm_is_taken_as_ctrl_c_with_its_own_exit_code(capsys):
+  """SIGTERM (kill, a batch scheduler's stop) during a run exited 143 with nothing written; it
+  now stops at the next safe point like Ctrl-C, and the command exits 143."""
+  before = signal.getsignal(signal.SIGTERM)
+  with interrupts.deferred():
+    os.kill(os.getpid(), signal.SIGTERM)
+    assert interrupts.requested() and interrupts.exit_code() == 143
+    assert "SIGTERM received: stopping at the next safe point" in capsys.readouterr().err
+    chunk, calls = chunks()
+    rollout = driver.drive(chunk, None, None, start(), max_steps=100, interruptible=True)
+  assert rollout.interrupted and len(calls) == 1 and rollout.steps == 4
+  assert signal.getsignal(signal.SIGTERM) is before
+
+
 def pressed_during_second_chunk():
   compiled, calls = chunks()
 
@@ -80,8 +94,8 @@ def test_ctrl_c_while_compiling_exits_130_and_writes_nothing(tmp_path):
 
 
 # jaxplore run whose second chunk never finishes and uses no CPU (a host callback that sleeps
-# 10 minutes, as a deadlocked runtime waits): the watchdog, the first Ctrl-C or a SIGTERM (a
-# batch scheduler's stop: it used to exit 143 with nothing written) must end it, results kept.
+# 10 minutes, as a deadlocked runtime waits): the watchdog or the first Ctrl-C must end it, with
+# the finished chunk's results written.
 STUCK_SECOND_CHUNK = textwrap.dedent("""
     import os, signal, sys, threading, time
     import jax
@@ -117,8 +131,7 @@ STUCK_SECOND_CHUNK = textwrap.dedent("""
 
 @pytest.mark.parametrize("mode, code, says", [
     ("watchdog", 3, "chunk 2 (from step 8) is stuck: the process has used no CPU"),
-    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 8) was still running 1 s after Ctrl-C"),
-    ("sigterm", 143, "SIGTERM received: stopping at the next safe point")])
+    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 8) was still running 1 s after Ctrl-C")])
 def test_a_stuck_run_ends_in_seconds_and_keeps_the_finished_chunk(tmp_path, mode, code, says):
   out = tmp_path / "run"
   proc = subprocess.run(

@@ -199,34 +199,7 @@ def test_cli_takes_parameters_as_flags(tmp_path, capsys):
   assert "'fast' is not a number" in capsys.readouterr().err
 
 
-PADDED = """
-import jax, pandas as pd, jaxplore
-assert len(jax.devices()) == 2, jax.devices()
-settings = dict(world="open", res=0.5, max_steps=24, replan_every=4, progress=False, quiet=True,
-                params={"r_max": 2.0}, devices=2)
-three = jaxplore.run(robots=3, **settings)
-four = jaxplore.run(robots=4, **settings)  # the padded batch's program: no second compile
-assert three.config["sharded_over"] == 2, three.config["sharded_over"]
-for leaf in jax.tree.leaves(three.state):
-  assert leaf.shape[0] == 3, leaf.shape
-pd.testing.assert_frame_equal(three.episodes, four.episodes.iloc[:3], check_exact=True)
-pd.testing.assert_frame_equal(three.curves, four.curves[four.curves.robot < 3], check_exact=True)
-assert three.timing["robot_steps"] == int(four.state.steps[:3].sum())
-"""
-
-
-def test_a_batch_that_does_not_divide_over_the_devices_is_padded_not_run_on_fewer():
-  """3 robots on 2 host devices run as 2 + 2 (a copy of the last robot, its results dropped),
-  not on one device: their tables, state and robot-step count are the first 3 robots' of a
-  batch of 4 (a robot's run does not depend on the others; sharded or not, bit for bit:
-  tests/test_sweep.py::test_sharded_sweep_equals_unsharded_bit_for_bit)."""
-  import subprocess
-  import sys
-  from conftest import REPO, subprocess_env
-  done = subprocess.run([sys.executable, "-c", PADDED], cwd=REPO, capture_output=True,
-                        env=subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
-                        timeout=300)
-  assert done.returncode == 0, done.stderr.decode()[-3000:]
+# A batch that does not divide over the devices: tests/test_smoke.py (its two-device process).
 
 
 @pytest.mark.slow  # the README's Python example, run for 4 steps: `pytest -m slow`

@@ -4,6 +4,9 @@ The command line makes one host device per core; CI has two cores, so two device
 planners (gpbo, ahmed, ags) used to hang forever at four robots there (two per device: jaxlib's
 batched LAPACK kernels deadlocked XLA:CPU's thread pool, see ``jaxplore.linalg``); the nine
 others finished. A hang fails this test at its time limit instead of stalling CI.
+
+The same process (its compiles are the suite's longest) checks that a batch that does not divide
+over the devices is padded, not run on fewer.
 """
 
 import subprocess
@@ -23,11 +26,30 @@ EVERY_PLANNER = textwrap.dedent("""
       print(f"SMOKE {name} exit {code} in {time.perf_counter() - t0:.1f} s", flush=True)
       if code:
         sys.exit(code)
+
+    # 3 robots on 2 devices run as 2 + 2 (a copy of the last robot, its results dropped), not on
+    # one device: their tables, state and robot-step count are the first 3 robots' of a batch of
+    # 4 (a robot's run does not depend on the others), from the same compiled program.
+    import jax, pandas as pd, jaxplore
+    settings = dict(world="open", res=0.5, planner="nearest_frontier", seed=5, max_steps=40,
+                    progress=False, quiet=True)
+    three = jaxplore.run(robots=3, **settings)
+    four = jaxplore.run(robots=4, **settings)
+    assert three.config["sharded_over"] == 2, three.config["sharded_over"]
+    for leaf in jax.tree.leaves(three.state):
+      assert leaf.shape[0] == 3, leaf.shape
+    pd.testing.assert_frame_equal(three.episodes, four.episodes.iloc[:3], check_exact=True)
+    pd.testing.assert_frame_equal(three.curves, four.curves[four.curves.robot < 3],
+                                  check_exact=True)
+    assert three.timing["robot_steps"] == int(four.state.steps[:3].sum())
+    print("PADDED ok", flush=True)
 """)
 
 
 def test_every_planner_runs_four_robots_on_two_host_devices():
-  env = subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2")
+  # no program of this process is compiled by another: none is written to the suite's cache
+  env = subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2",
+                       JAX_ENABLE_COMPILATION_CACHE="false")
   try:
     proc = subprocess.run([sys.executable, "-c", EVERY_PLANNER], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=540)
@@ -39,3 +61,4 @@ def test_every_planner_runs_four_robots_on_two_host_devices():
   from jaxplore.planners import planner_names
   assert len(finished) == len(planner_names()) >= 12, finished
   assert "on 2 x cpu" in proc.stdout  # sharded over both devices
+  assert "PADDED ok" in proc.stdout
