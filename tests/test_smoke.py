@@ -7,6 +7,10 @@ others finished. A hang fails this test at its time limit instead of stalling CI
 
 The same process (its compiles are the suite's longest) checks that a batch that does not divide
 over the devices is padded, not run on fewer.
+
+LLVM optimises the programs at level 0 here: their compile is ~20 % shorter (li2020: 9.8 s against
+12.2 s), and what can hang is the runtime's threading, which is the same at every level (the
+code before the fix hung gpbo at level 0 too).
 """
 
 import subprocess
@@ -48,7 +52,8 @@ EVERY_PLANNER = textwrap.dedent("""
 
 def test_every_planner_runs_four_robots_on_two_host_devices():
   # no program of this process is compiled by another: none is written to the suite's cache
-  env = subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2",
+  env = subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2 "
+                                 "--xla_backend_optimization_level=0",
                        JAX_ENABLE_COMPILATION_CACHE="false")
   try:
     proc = subprocess.run([sys.executable, "-c", EVERY_PLANNER], cwd=REPO, env=env,
