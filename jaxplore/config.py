@@ -313,13 +313,15 @@ def validate_params(params: Params, config: SimConfig) -> None:
   check("v_max", p.v_max, positive, "> 0")
   check("w_max", p.w_max, positive, "> 0")
   check("dt", p.dt, positive, "> 0")
-  # A step ends at its waypoint, one cell away: a longer reach would count time not driven.
+  # A step ends at its waypoint, a neighbouring cell (diagonal at most): a longer reach would
+  # count time not driven.
   reach = np.asarray(p.v_max, np.float64) * np.asarray(p.dt, np.float64)
-  if np.any(reach > config.res * (1 + 1e-4)):
-    raise ConfigError(f"v_max * dt = {shown(reach, reach > config.res * (1 + 1e-4))} m per step, "
-                      f"more than one cell ({config.res:g} m): a step ends at the next waypoint, "
-                      f"so the time would count travel that never happens; leave dt unset (it is "
-                      f"res / v_max) or give dt <= res / v_max")
+  longest = math.sqrt(2) * config.res * (1 + 1e-4)
+  if np.any(reach > longest):
+    raise ConfigError(f"v_max * dt = {shown(reach, reach > longest)} m per step, more than a "
+                      f"cell's diagonal ({math.sqrt(2) * config.res:.3g} m): a step ends at the "
+                      f"next waypoint, so the time would count travel that never happens; leave "
+                      f"dt unset (it is res / v_max) or give dt <= res / v_max")
   half_turn = math.pi / (np.asarray(p.w_max, np.float64) * np.asarray(p.dt, np.float64))
   most = max(config.max_steps, 1000)
   if np.any(half_turn > most):

@@ -35,7 +35,7 @@ def test_the_help_is_whole_and_run_help_lists_every_planner(capsys):
     (["--planner-set", "k1"], "--planner-set takes NAME=VALUE"),
     # both ran silently wrong: 0 m driven at 1e6 m/s (dt became 1e-7 s), 1,000 s per metre
     (["--set", "v_max=1e6"], "steps to turn half a circle, more than its 8 and 1000"),
-    (["--set", "dt=100"], "v_max * dt = 25 m per step, more than one cell (0.5 m)")])
+    (["--set", "dt=100"], "v_max * dt = 25 m per step, more than a cell's diagonal (0.707 m)")])
 def test_bad_flags_exit_2_naming_the_problem(capsys, flags, says):
   assert cli.main(RUN + flags) == 2
   err = capsys.readouterr().err
