@@ -1,5 +1,8 @@
-"""The package's error for invalid settings (a module of its own, so that any module can raise
-it without importing the configuration)."""
+"""The package's errors: invalid settings, and outputs that cannot be written (a module of its
+own, so that any module can raise them without importing the configuration)."""
+
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -16,8 +19,6 @@ class OutputError(OSError):
 def check_writable(path, what: str) -> None:
   """Refuses, before any compute, an output ``path`` (a file or folder, existing or to be made)
   that cannot be written: a parent that is a file, a read-only filesystem, no permission."""
-  import os
-  from pathlib import Path
   path = Path(path).absolute()
   existing = path
   while not existing.exists() and existing != existing.parent:
