@@ -142,7 +142,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
       "robot_seeds": None if spec.robot_seeds is None else list(spec.robot_seeds),
       "robots": robots, "planner": spec.planner, "preset": spec.preset,
       "start": None if spec.start is None else list(spec.start),
-      "interrupted": rollout.interrupted, "stalled": rollout.stalled, **described, "rate_interval_m": spec.rate_interval,
+      "interrupted": rollout.interrupted, "stalled": rollout.stalled, **described,
+      "rate_interval_m": spec.rate_interval,
       "spec": spec.to_json(),
   }
   robot_steps = int(np.asarray(rollout.state.steps).sum())

@@ -71,8 +71,9 @@ class SweepResult:
 def _planners_preset(planner):
   """The preset the sweep's planners all bring (``PlannerSpec.preset``), or None."""
   from jaxplore.planners.base import planner_preset
-  names = [planner] if planner is None or isinstance(planner, str) else list(planner)
-  presets = {planner_preset(name) for name in names} if names != [None] else {None}
+  if planner is None:
+    return None
+  presets = {planner_preset(name) for name in ([planner] if isinstance(planner, str) else planner)}
   return presets.pop() if len(presets) == 1 else None
 
 
