@@ -128,6 +128,7 @@ def _legacy_spec(config: dict, episodes: pd.DataFrame, grid) -> RunSpec:
       start=config.get("start"), max_steps=sim_config["max_steps"],
       replan_every=sim_config["replan_every"], path_capacity=sim_config["path_capacity"],
       plan_window=sim_config.get("plan_window"), pose_noise=sim_config["pose_noise"],
+      slam=sim_config.get("slam"),
       params={k: v for k, v in values(config["params"]).items() if k in SIM_PARAMS},
       planner_params=values(config["planner_params"]))
 

@@ -126,7 +126,7 @@ def _spec_flags(args, extra, planners) -> dict:
   planner_params.update(_key_values(args.planner_set, "--planner-set", text_allowed=True))
   return dict(preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
               replan_every=args.replan_every, path_capacity=args.path_capacity,
-              plan_window=args.plan_window, pose_noise=args.pose_noise,
+              plan_window=args.plan_window, pose_noise=args.pose_noise, slam=args.slam,
               pose_graph=args.pose_graph, graph_loops=args.graph_loops,
               rate_interval=args.rate_interval, chunk_epochs=args.chunk_epochs,
               strategy=args.strategy,
@@ -244,6 +244,10 @@ def _add_spec_flags(p):
                  "range)")
   p.add_argument("--pose-noise", action="store_true", default=None,
                  help="noisy odometry, drifting estimate")
+  p.add_argument("--slam", choices=("oracle", "scan_matching"), default=None,
+                 help="SLAM model: oracle (relocalised by its true pose) or scan_matching (scan "
+                 "matching against its own map, loop closures, pose-graph optimisation; turns "
+                 "--pose-noise on). Default: oracle")
   p.add_argument("--pose-graph", action="store_true", default=None,
                  help="keep each robot's SLAM pose graph and its metrics (always on for ahmed "
                  "and ags)")

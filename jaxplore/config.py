@@ -25,6 +25,9 @@ from jaxplore.errors import ConfigError, shown
 
 
 
+# The SLAM models (SimConfig.slam; jaxplore.slam.model).
+SLAM_MODELS = ("oracle", "scan_matching")
+
 # How a batch of robots is executed (SimConfig.strategy).
 STRATEGIES = ("auto", "per_robot", "lockstep")
 
@@ -92,6 +95,26 @@ class SimConfig:
       counted (``loops_dropped``) and not added.
     max_loop_cells: static bound of the loop-closure radius ``Params.loop_radius`` in cells (it
       fixes the samples of a line-of-sight test).
+    slam: the SLAM model (:data:`SLAM_MODELS`): ``"oracle"`` relocalises a robot by a
+      measurement of its true pose when its scan ends on well-mapped walls; ``"scan_matching"``
+      runs a graph SLAM (:mod:`jaxplore.slam.model`: scan matching against the robot's own
+      belief, loop closures, pose-graph optimisation, the map rebuilt from the keyframes'
+      scans). ``scan_matching`` turns ``pose_noise`` on (the odometry error is what it corrects)
+      and needs ``graph_nodes`` > 0.
+    slam_match_beams: scan points a match scores (every ``n_beams // slam_match_beams``-th beam).
+    slam_smear: std (m) of the correlation field's Gaussian around each belief wall, front end
+      (slam_toolbox's ``correlation_search_space_smear_deviation``).
+    slam_search_m: largest half-width (m) of the front end's search (slam_toolbox's
+      ``correlation_search_space_dimension`` / 2); the window is 3σ of the odometry since the
+      last keyframe, within ``[res, slam_search_m]``.
+    slam_steps: coarse candidates on each side of the prediction in x, y and θ.
+    slam_fine_steps: fine candidates on each side of the coarse best (within one coarse step).
+    loop_search_m: largest half-width (m) of a loop closure's search; the window is 3σ of the
+      odometry since the last closure.
+    loop_smear: the correlation field's std (m), loop closures.
+    loop_steps: coarse candidates on each side in x and y, loop closures.
+    loop_candidates: older keyframes whose scans make a loop closure's local map.
+    slam_iterations: most Gauss-Newton / Levenberg-Marquardt iterations of an optimisation.
     strategy: how the batch is executed (:data:`STRATEGIES`): ``"per_robot"`` walks the robots
       one (or ``plan_chunk``) at a time through the irregular stages, ``"lockstep"`` runs each
       stage as one kernel over the whole batch; ``"auto"`` (the default) is resolved on
@@ -120,6 +143,17 @@ class SimConfig:
   graph_nodes: int = 0
   graph_loops: int = 256
   max_loop_cells: int = 40
+  slam: str = "oracle"
+  slam_match_beams: int = 90
+  slam_smear: float = 0.1
+  slam_search_m: float = 0.25
+  slam_steps: int = 5
+  slam_fine_steps: int = 3
+  loop_search_m: float = 2.0
+  loop_smear: float = 0.1
+  loop_steps: int = 10
+  loop_candidates: int = 10
+  slam_iterations: int = 10
   strategy: str = "auto"
 
   def __post_init__(self):
@@ -146,6 +180,22 @@ class SimConfig:
       raise ConfigError(f"res must be a positive number of metres, got {self.res!r}")
     if not (isinstance(self.r_e, (int, float)) and math.isfinite(self.r_e) and self.r_e > 0):
       raise ConfigError(f"r_e must be a positive number of metres, got {self.r_e!r}")
+    if self.slam not in SLAM_MODELS:
+      raise ConfigError(f"slam must be one of {', '.join(SLAM_MODELS)}, got {self.slam!r}")
+    for name in ("slam_match_beams", "slam_steps", "slam_fine_steps", "loop_steps",
+                 "loop_candidates", "slam_iterations"):
+      value = getattr(self, name)
+      if not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    for name in ("slam_smear", "slam_search_m", "loop_search_m", "loop_smear"):
+      value = getattr(self, name)
+      if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"{name} must be a positive number of metres, got {value!r}")
+    if self.slam == "scan_matching":
+      object.__setattr__(self, "pose_noise", True)
+      if not self.graph_nodes:
+        raise ConfigError("slam='scan_matching' keeps a pose graph: graph_nodes must be > 0 "
+                          "(posegraph.keyframe_bound; jaxplore.resolve.resolve sets it)")
 
   @property
   def n_epochs(self) -> int:
@@ -200,6 +250,21 @@ class Params:
   loop_radius: Any = 4.0  # a loop closes to a keyframe within this distance, m ...
   loop_min_age: Any = 15.0  # ... at least this many keyframes older ...
   loop_max_turn: Any = math.pi / 2  # ... whose heading differs by at most this, rad
+  # The scan_matching SLAM model (jaxplore.slam.model). Karto's scan matcher settings, as
+  # slam_toolbox's mapper_params_online_async.yaml sets them:
+  slam_min_response: Any = 0.1  # link_match_minimum_response_fine: a weaker match is refused
+  slam_distance_penalty: Any = 0.5  # distance_variance_penalty, m²
+  slam_angle_penalty: Any = 1.0  # angle_variance_penalty, rad²
+  slam_min_distance_penalty: Any = 0.5  # minimum_distance_penalty
+  slam_min_angle_penalty: Any = 0.9  # minimum_angle_penalty
+  slam_min_angle: Any = math.radians(2.0)  # the angular search's half-width, at least ...
+  slam_max_angle: Any = 0.349  # ... and at most (coarse_search_angle_offset), rad
+  loop_min_response: Any = 0.45  # loop_match_minimum_response_fine
+  loop_max_variance: Any = 3.0  # loop_match_maximum_variance_coarse, m²
+  # A closure's pose must lie within this Mahalanobis distance² of the estimate (chi-square,
+  # 3 degrees of freedom, 99 %; not Karto's: its 8 m window has no such gate); a closure whose
+  # own bound this far excludes the truth is counted false.
+  loop_gate: Any = 11.34
   # episode
   # Fraction of reachable free area that counts as complete; above 1 coverage never ends an
   # episode, only the planner (a planner that returns home, Toriz & Sánchez) or the step budget.
@@ -350,6 +415,14 @@ def validate_params(params: Params, config: SimConfig) -> None:
     check("loop_radius", p.loop_radius, lambda a: a <= max_r + 1e-6,
           f"<= max_loop_cells * res = {max_r:.3g} m (raise SimConfig.max_loop_cells)")
     posegraph.check_capacity(config.graph_nodes, config.max_steps, p)
+  for name in ("slam_min_response", "loop_min_response", "slam_min_distance_penalty",
+               "slam_min_angle_penalty"):
+    check(name, getattr(p, name), lambda a: (a >= 0) & (a <= 1), "in [0, 1]")
+  for name in ("slam_distance_penalty", "slam_angle_penalty", "loop_max_variance", "loop_gate",
+               "slam_min_angle"):
+    check(name, getattr(p, name), positive, "> 0")
+  check("slam_max_angle", p.slam_max_angle, lambda a: (a >= np.asarray(p.slam_min_angle))
+        & (a <= math.pi), "in [slam_min_angle, π]")
   check("coverage_goal", p.coverage_goal, lambda a: a > 0, "> 0 (above 1: never complete by coverage)")
   for name, value in p.planner.items():
     check(f"planner.{name}", value, lambda a: np.ones_like(a, bool), "finite")

@@ -53,4 +53,16 @@ def det3(m):
           + m[..., 0, 2] * (m[..., 1, 0] * m[..., 2, 1] - m[..., 1, 1] * m[..., 2, 0]))
 
 
-__all__ = ["cholesky", "det3", "eigvalsh", "inv", "solve_triangular"]
+def inv3(m):
+  """Inverse of stacked 3x3 matrices by the adjugate (no LAPACK call); singular -> inf/NaN."""
+  a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+  d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+  g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+  adj = jnp.stack([
+      jnp.stack([e * i - f * h, c * h - b * i, b * f - c * e], axis=-1),
+      jnp.stack([f * g - d * i, a * i - c * g, c * d - a * f], axis=-1),
+      jnp.stack([d * h - e * g, b * g - a * h, a * e - b * d], axis=-1)], axis=-2)
+  return adj / det3(m)[..., None, None]
+
+
+__all__ = ["cholesky", "det3", "eigvalsh", "inv", "inv3", "solve_triangular"]

@@ -22,6 +22,8 @@ def _largest_part(config: SimConfig) -> str:
   parts = {
       f"the planner's memory ({config.planner}'s settings)":
           PLANNER_MEMORY_COPIES * planner_memory_bytes(config),
+      f"the pose graph of {config.graph_nodes} keyframes (max_steps, kf_dist, kf_rot) and their "
+      f"scans of {config.n_beams} beams": PLANNER_MEMORY_COPIES * graph_bytes(config),
       f"the {config.height}x{config.width} grid at {config.res:g} m/cell (--res)":
           cells * (GRID_BYTES_PER_CELL + ROBOT_BYTES_PER_CELL),
       f"the per-step records of max_steps={config.max_steps}": config.max_steps * 10 * 4,
@@ -66,7 +68,22 @@ def planner_memory_bytes(config: SimConfig) -> int:
   return sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
 
 
-# A planner's memory is held three times: in the state, in the next state of the compiled loop,
+@functools.lru_cache(maxsize=64)
+def graph_bytes(config: SimConfig) -> int:
+  """Bytes of one robot's SLAM pose graph (:func:`jaxplore.posegraph.init`: keyframes, edges
+  and, with the ``scan_matching`` model, every keyframe's scan), from its shapes alone."""
+  if not config.graph_nodes:
+    return 0
+  import jax
+  import jax.numpy as jnp
+  from jaxplore import posegraph
+  beams = config.n_beams if config.slam == "scan_matching" else 0
+  shapes = jax.eval_shape(lambda: posegraph.init(jnp.zeros(3), config.graph_nodes,
+                                                 config.graph_loops, beams=beams))
+  return sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+
+
+# A planner's memory (and a pose graph) is held three times: in the state, in the next state of the compiled loop,
 # and in the host copy of the final state.
 PLANNER_MEMORY_COPIES = 3
 
@@ -89,11 +106,11 @@ def estimate_bytes(config: SimConfig, robots: int) -> int:
     from jaxplore.planning import lockstep_plan_chunk
     planning = lockstep_plan_chunk(config, robots) * cells * LOCKSTEP_PLANNING_BYTES_PER_CELL
     per_robot = (cells * LOCKSTEP_BYTES_PER_CELL + records
-                 + PLANNER_MEMORY_COPIES * planner_memory_bytes(config))
+                 + PLANNER_MEMORY_COPIES * (planner_memory_bytes(config) + graph_bytes(config)))
     return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + planning + robots * per_robot
   lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
   per_robot = (cells * ROBOT_BYTES_PER_CELL + records + lidar
-               + PLANNER_MEMORY_COPIES * planner_memory_bytes(config))
+               + PLANNER_MEMORY_COPIES * (planner_memory_bytes(config) + graph_bytes(config)))
   return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + robots * per_robot
 
 

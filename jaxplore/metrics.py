@@ -152,12 +152,41 @@ def dopt_range(dopt_mean_curve) -> dict:
   return {"dopt_max": hi, "dopt_min": lo, "dopt_R": 100.0 * (hi - lo) / hi}
 
 
+def slam_accuracy(graph) -> dict:
+  """A ``scan_matching`` robot's SLAM columns from its final pose graph: ``ate_m`` (absolute
+  trajectory error of its keyframes, RMSE after rigid alignment, as ``evo_ape --align``),
+  ``rpe_m_per_m`` (relative pose error over 1 m stretches, as ``evo_rpe --delta 1 --delta_unit
+  m``, divided by the metre), ``loop_closures`` and ``false_closures``, ``matches_rejected``
+  (keyframes dead-reckoned), ``optimisations``."""
+  from jaxplore.slam import accuracy
+  n = int(graph.n_nodes)
+  valid = np.arange(np.asarray(graph.poses).shape[0]) < n
+  estimated = np.asarray(graph.poses, np.float32)
+  truth = np.asarray(graph.truth, np.float32)
+  loops = int(graph.n_loops)
+  return {
+      "ate_m": float(accuracy.absolute_trajectory_error(estimated, truth, valid)),
+      "rpe_m_per_m": float(accuracy.relative_pose_error(estimated, truth, valid, delta=1.0)),
+      "loop_closures": loops,
+      "false_closures": int(np.sum(np.asarray(graph.loop_false)[:loops])),
+      "matches_rejected": int(graph.matches_rejected),
+      "optimisations": int(graph.optimisations),
+  }
+
+
 def map_and_graph_row(logodds, truth_occupied, graph=None, dopt_curve=None) -> dict:
-  """One robot's map-quality columns and, with its final pose graph (NumPy leaves of a
-  :class:`jaxplore.posegraph.PoseGraph`), its connectivity and Table II columns."""
+  """One robot's map-quality columns (with ``misplaced_walls``: the fraction of the cells its
+  belief holds occupied, P > 0.5, that lie more than one cell from every true wall) and, with its final
+  pose graph (NumPy leaves of a :class:`jaxplore.posegraph.PoseGraph`), its connectivity and
+  Table II columns, and with the ``scan_matching`` model its :func:`slam_accuracy`."""
+  from jaxplore.slam import accuracy
   row = map_quality(logodds, truth_occupied)
+  row["misplaced_walls"] = float(accuracy.misplaced_walls(np.asarray(logodds) > 0.0,
+                                                          np.asarray(truth_occupied)))
   if graph is not None:
     row.update(graph_metrics(graph.chain_w, graph.loops, graph.loop_w, int(graph.n_nodes),
                              int(graph.n_loops), int(graph.loops_dropped)))
     row.update(dopt_range([] if dopt_curve is None else dopt_curve))
+    if getattr(graph, "truth", None) is not None:
+      row.update(slam_accuracy(graph))
   return row

@@ -62,6 +62,21 @@ class PoseGraph:
     loops_dropped: i32 loop closures found with the loop list full (not added).
     acc_pose: f32[3] odometry since the last keyframe, in its frame (x, y m, θ rad).
     acc_cov: f32[3, 3] odometry covariance ``Σ V_n`` accumulated since the last keyframe.
+
+  With the ``scan_matching`` SLAM model (:mod:`jaxplore.slam.model`; None otherwise):
+    truth: f32[N, 3] the true pose at each keyframe (for the trajectory error, never read by
+      the robot).
+    chain_measured: f32[N, 3] the odometry edge (i − 1, i) at ``i``: keyframe i's pose in
+      keyframe i − 1's frame, as the front end measured it. chain_info: f32[N, 3, 3] its
+      information matrix.
+    loop_measured: f32[M, 3], loop_info: f32[M, 3, 3]: the same for the loop closures.
+    loop_false: bool[M] a closure whose measured relative pose is wrong (compared with the truth).
+    ranges: f16[N, B] each keyframe's scan (cells; a beam with no hit holds ``-range``).
+    drift_cov: f32[3, 3] odometry covariance accumulated since the last loop closure (sizes the
+      loop search).
+    closed_at: f32[2] where (estimated x, y) the last loop closed; NaN before the first.
+    optimisations: i32 back-end runs. matches_rejected: i32 keyframes whose scan match was
+      refused (the robot dead-reckoned). loops_rejected: i32 loop searches that found no match.
   """
 
   poses: chex.Array
@@ -73,18 +88,45 @@ class PoseGraph:
   loops_dropped: chex.Array
   acc_pose: chex.Array
   acc_cov: chex.Array
+  truth: chex.Array | None = None
+  chain_measured: chex.Array | None = None
+  chain_info: chex.Array | None = None
+  loop_measured: chex.Array | None = None
+  loop_info: chex.Array | None = None
+  loop_false: chex.Array | None = None
+  ranges: chex.Array | None = None
+  drift_cov: chex.Array | None = None
+  closed_at: chex.Array | None = None
+  optimisations: chex.Array | None = None
+  matches_rejected: chex.Array | None = None
+  loops_rejected: chex.Array | None = None
 
 
-def init(pose, node_capacity: int, loop_capacity: int) -> PoseGraph:
-  """A graph holding one keyframe at ``pose`` (f32[3])."""
+def init(pose, node_capacity: int, loop_capacity: int, beams: int = 0) -> PoseGraph:
+  """A graph holding one keyframe at ``pose`` (f32[3]); with ``beams`` > 0, room for the
+  ``scan_matching`` SLAM model's edges and keyframe scans of that many beams (the first
+  keyframe's scan is stored by the caller)."""
   pose = jnp.asarray(pose, jnp.float32)
+  slam = {}
+  if beams:
+    n, m = node_capacity, loop_capacity
+    slam = dict(
+        truth=jnp.zeros((n, 3), jnp.float32).at[0].set(pose),
+        chain_measured=jnp.zeros((n, 3), jnp.float32),
+        chain_info=jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (n, 3, 3)),
+        loop_measured=jnp.zeros((m, 3), jnp.float32),
+        loop_info=jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (m, 3, 3)),
+        loop_false=jnp.zeros((m,), bool), ranges=jnp.zeros((n, beams), jnp.float16),
+        drift_cov=jnp.zeros((3, 3), jnp.float32), closed_at=jnp.full((2,), jnp.nan, jnp.float32),
+        optimisations=jnp.int32(0),
+        matches_rejected=jnp.int32(0), loops_rejected=jnp.int32(0))
   return PoseGraph(
       poses=jnp.zeros((node_capacity, 3), jnp.float32).at[0].set(pose),
       chain_w=jnp.zeros((node_capacity,), jnp.float32),
       loops=jnp.zeros((loop_capacity, 2), jnp.int32),
       loop_w=jnp.zeros((loop_capacity,), jnp.float32),
       n_nodes=jnp.int32(1), n_loops=jnp.int32(0), loops_dropped=jnp.int32(0),
-      acc_pose=jnp.zeros((3,), jnp.float32), acc_cov=jnp.zeros((3, 3), jnp.float32))
+      acc_pose=jnp.zeros((3,), jnp.float32), acc_cov=jnp.zeros((3, 3), jnp.float32), **slam)
 
 
 # --- edge weights --------------------------------------------------------------------------------
@@ -205,11 +247,12 @@ def observe(graph: PoseGraph, pose, v_n, increment, active, logodds, origin, res
   loop_w = graph.loop_w.at[loop_slot].set(1.0 / sm_var, mode="drop")
 
   keep = ~new
-  return PoseGraph(poses=poses, chain_w=chain_w, loops=loops, loop_w=loop_w,
-                   n_nodes=i + new.astype(jnp.int32),
-                   n_loops=graph.n_loops + write.astype(jnp.int32),
-                   loops_dropped=graph.loops_dropped + (closes & ~room).astype(jnp.int32),
-                   acc_pose=jnp.where(keep, acc_pose, 0.0), acc_cov=jnp.where(keep, acc_cov, 0.0))
+  return graph.replace(poses=poses, chain_w=chain_w, loops=loops, loop_w=loop_w,
+                       n_nodes=i + new.astype(jnp.int32),
+                       n_loops=graph.n_loops + write.astype(jnp.int32),
+                       loops_dropped=graph.loops_dropped + (closes & ~room).astype(jnp.int32),
+                       acc_pose=jnp.where(keep, acc_pose, 0.0),
+                       acc_cov=jnp.where(keep, acc_cov, 0.0))
 
 
 # --- dense kernels -------------------------------------------------------------------------------

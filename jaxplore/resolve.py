@@ -181,6 +181,11 @@ def split_params(params) -> tuple[dict, dict]:
   for name, value in (params or {}).items():
     if name in STATIC_PARAMS:
       static[name] = float(_one_value(name, value))
+      default = getattr(SimConfig, name, None)
+      if isinstance(default, int) and not isinstance(default, bool):
+        if not static[name].is_integer():
+          raise ConfigError(f"{name} must be an integer, got {value!r}")
+        static[name] = int(static[name])
     else:
       traced[name] = np.asarray(value, np.float32) if isinstance(value, tuple) else value
   return traced, static
@@ -213,8 +218,9 @@ def resolve(spec: RunSpec) -> Resolved:
   params = build_params(spec.planner, spec.preset, grid.res, dict(spec.params),
                         dict(spec.planner_params))
   settings = planner.resolve_settings(split_planner_params(spec.planner, spec.planner_params)[1])
+  slam = spec.slam or "oracle"
   overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise, planner_settings=settings,
-                   **split_params(spec.params)[1])
+                   slam=slam, **split_params(spec.params)[1])
   for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)
@@ -224,7 +230,8 @@ def resolve(spec: RunSpec) -> Resolved:
                       f"{grid.shape[1]}x{grid.shape[0]} grid has cells ({cells}): a shortest "
                       f"path visits each cell at most once")
   max_steps = spec.max_steps if spec.max_steps is not None else default_max_steps(grid, params)
-  if spec.pose_graph or (spec.pose_graph is None and planner.needs_pose_graph):
+  if (spec.pose_graph or (spec.pose_graph is None and planner.needs_pose_graph)
+      or slam == "scan_matching"):
     # Room for every keyframe the run can create (posegraph.keyframe_bound).
     overrides["graph_nodes"] = posegraph.keyframe_bound(max_steps, params.v_max, params.w_max,
                                                         params.dt, params.kf_dist, params.kf_rot)

@@ -59,7 +59,7 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
     t_idx, r_idx = t_idx[order], r_idx[order]
     curves = pd.DataFrame({"robot": r_idx.astype(np.int32), "step": (t_idx + 1).astype(np.int32)})
     for name in ("time", "distance", "entropy", "coverage", "det_cov", "pose_error", "x", "y",
-                 "graph_nodes", "graph_edges", "dopt_mean"):
+                 "graph_nodes", "graph_edges", "dopt_mean", "loop_closures", "false_closures"):
       if getattr(records, name) is not None:  # the pose graph's columns only with a graph
         curves[name] = getattr(records, name)[t_idx, r_idx].astype(np.float64)
   initial = float(config.height * config.width * math.log(2.0))

@@ -19,7 +19,7 @@ to do).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import chex
 import jax
@@ -29,6 +29,7 @@ from jaxplore import linalg, mapping, motion, posegraph, sensor
 from jaxplore.config import Params, SimConfig
 from jaxplore.errors import ConfigError
 from jaxplore.planners import base as planners_base
+from jaxplore.slam import model as slam_model
 from jaxplore.world import World, cell_centre, cell_of, sample_start, to_cells
 
 RUNNING, COMPLETE, EXHAUSTED, TIMEOUT = 0, 1, 2, 3
@@ -104,6 +105,10 @@ class Record:
   graph_nodes: Any = None
   graph_edges: Any = None
   dopt_mean: Any = None
+  # With the scan_matching SLAM model (else None): loop closures accepted so far, and how many of
+  # them are false.
+  loop_closures: Any = None
+  false_closures: Any = None
 
 
 def keeps_entropy_map(config: SimConfig) -> bool:
@@ -147,21 +152,29 @@ def robot_view(config: SimConfig, world: World, state: State) -> planners_base.R
                                  cov=state.cov)
 
 
-def _sense(config: SimConfig, world: World, params: Params, state: State, key, active):
-  """Scan, relocalise, integrate into the belief, update the entropy map and the running metrics.
+def _sense(config: SimConfig, world: World, params: Params, state: State, key, active,
+           odometry=None, first=False):
+  """Scan, localise, integrate into the belief, update the entropy map and the running metrics.
 
   ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched; such a
   robot casts no beam. Under ``vmap`` the robots are processed one after the other with their
   maps updated in place (:func:`mapping.per_robot` says why that beats a ``vmap`` on a CPU),
   or, with the ``lockstep`` strategy, all at once.
+
+  Localisation: with the ``oracle`` SLAM model, a Kalman update by a measurement of the true pose
+  when the scan ends on enough well-mapped walls; with ``scan_matching``, the SLAM model of
+  :mod:`jaxplore.slam.model` (``odometry``: the step's measured increment and its covariance;
+  ``first``: the scan is the first keyframe's).
   """
   res = config.res
   shape = (config.height, config.width)
   n_cross = config.max_range_cells + 1
+  slam = config.slam == "scan_matching"
+  whole_grid = config.strategy == "lockstep"
 
   def one(robot, grids, inputs):
-    logodds, entropy_map = grids
-    params, pose, pose_est, cov, key, active, angles, dirs, est_dirs = inputs
+    logodds, entropy_map, graph = grids
+    (params, pose, pose_est, cov, key, active, angles, dirs, est_dirs, odometry, totals) = inputs
     true_uv = to_cells(pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
     noise_key, _ = jax.random.split(key)
     scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles, params.r_max / res,
@@ -182,53 +195,193 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
                                             true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
       return seen, est_uv, end_rows, end_cols, est_dirs
 
-    seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
-    # Relocalisation: enough beams end on occupied cells the belief already knows well.
-    # An end off the grid (an estimate near the edge) is no cell the belief knows: 0, not the
-    # far edge's cell that a wrapped negative index would read.
-    old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0,
-                                                        wrap_negative_indices=False)
-    well_mapped = (old_end > mapping.logit(params.p_occ)) & (
-        mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
-    hits = jnp.sum(well_mapped & scan.hit)
-    meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy, params.reloc_var_theta]))
-    new_est, new_cov = motion.relocalise(pose_est, cov, pose, meas_cov)
-    reloc = active & (hits >= params.reloc_min_hits)
-    pose_est = jnp.where(reloc, new_est, pose_est)
-    cov = jnp.where(reloc, new_cov, cov)
+    if slam:
+      own_graph = jax.tree.map(lambda g: g[robot], graph)
+      own_grid = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
+      pose_est, cov, own_graph, frame = _slam_front(config, world, params, own_graph, own_grid,
+                                                    scan, pose, pose_est, cov, active, odometry,
+                                                    first)
+      # As slam_toolbox builds its grid: only keyframes' scans, each re-traced from the
+      # keyframe's estimated pose (what a rebuild after a loop closure re-integrates).
+      observed = slam_model.keyframe_observation(
+          own_graph, own_graph.n_nodes - 1, slam_model.beam_offsets(params, config.n_beams),
+          world.origin, res, shape, n_cross, active=frame.new | first)
+      old_end = jnp.float32(0.0)
+    else:
+      seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
+      # Relocalisation: enough beams end on occupied cells the belief already knows well.
+      # An end off the grid (an estimate near the edge) is no cell the belief knows: 0, not the
+      # far edge's cell that a wrapped negative index would read.
+      old_end = logodds.at[robot, end_rows, end_cols].get(mode="fill", fill_value=0.0,
+                                                          wrap_negative_indices=False)
+      well_mapped = (old_end > mapping.logit(params.p_occ)) & (
+          mapping.entropy_of_logodds(old_end) < params.reloc_entropy)
+      hits = jnp.sum(well_mapped & scan.hit)
+      meas_cov = jnp.diag(jnp.stack([params.reloc_var_xy, params.reloc_var_xy,
+                                     params.reloc_var_theta]))
+      new_est, new_cov = motion.relocalise(pose_est, cov, pose, meas_cov)
+      reloc = active & (hits >= params.reloc_min_hits)
+      pose_est = jnp.where(reloc, new_est, pose_est)
+      cov = jnp.where(reloc, new_cov, cov)
 
     carried = {}
-    if config.pose_noise:
+    if config.pose_noise and not slam:
       # As a SLAM front end does: the scan that relocalised the robot is integrated at the
       # corrected pose (integrated first, a heading error of a degree laid far walls' cells
       # across free space before the correction), and the free cells are carried from the
       # true beams (sensor.mark_observed).
       seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est)
       carried = dict(true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
-    observed = sensor.mark_observed(sensor.empty_observation(shape), shape, seen, est_uv[0], est_uv[1],
-                                    end_rows, end_cols, n_cross, active, est_dirs, **carried)
+    if not slam:
+      observed = sensor.mark_observed(sensor.empty_observation(shape), shape, seen, est_uv[0],
+                                      est_uv[1], end_rows, end_cols, n_cross, active, est_dirs,
+                                      **carried)
 
     logodds, d_entropy, d_covered = mapping.integrate_observation(
         logodds, robot, sensor.observation_tiles(observed, shape), world.reachable, params,
-        after=jnp.sum(old_end), whole_grid=config.strategy == "lockstep")
+        after=jnp.sum(old_end), whole_grid=whole_grid)
+    if slam:
+      logodds, own_graph, pose_est, rebuilt = _slam_back(config, world, params, own_graph, logodds,
+                                                         robot, pose, pose_est, frame)
+      d_entropy = jnp.where(rebuilt.done, rebuilt.entropy - totals[0], d_entropy)
+      d_covered = jnp.where(rebuilt.done, rebuilt.covered - totals[1], d_covered)
+      graph = jax.tree.map(lambda g, new: g.at[robot].set(new), graph, own_graph)
     if entropy_map is not None:
       ru_cells = jnp.where(active, params.alpha * config.r_e / res, 0.0)
       entropy_map = mapping.update_entropy_map(
           entropy_map, logodds, to_cells(pose_est[:2], world.origin, res), ru_cells,
           params.entropy_k, 2 * config.max_update_radius_cells + 3, robot=robot)
-    return (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered)
+    return (logodds, entropy_map, graph), (pose_est, cov, d_entropy, d_covered)
 
   # Beam directions are computed here, for the whole batch at once, rather than inside the
   # per-robot loop (see sensor.measure).
   angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
   est_angles = angles - state.pose[2] + state.pose_est[2] if config.pose_noise else angles
+  if odometry is None:
+    odometry = (jnp.zeros_like(state.pose), jnp.zeros_like(state.cov))
   inputs = (params, state.pose, state.pose_est, state.cov, key, active, angles,
-            sensor.directions(angles), sensor.directions(est_angles))
-  batched = mapping.per_robot(one, lockstep=config.strategy == "lockstep")
-  (logodds, entropy_map), (pose_est, cov, d_entropy, d_covered) = batched(
-      (state.logodds, state.entropy_map), inputs)
+            sensor.directions(angles), sensor.directions(est_angles), odometry,
+            (state.entropy, state.covered))
+  batched = mapping.per_robot(one, lockstep=whole_grid)
+  graph = state.graph if slam else None
+  (logodds, entropy_map, graph), (pose_est, cov, d_entropy, d_covered) = batched(
+      (state.logodds, state.entropy_map, graph), inputs)
+  state = state.replace(graph=graph) if slam else state
   return state.replace(pose_est=pose_est, cov=cov, logodds=logodds, entropy_map=entropy_map,
                        entropy=state.entropy + d_entropy, covered=state.covered + d_covered)
+
+
+class _Keyframe(NamedTuple):
+  """What the SLAM front end hands its back end within one step."""
+
+  new: Any  # bool: this scan is a new keyframe
+  points: Any  # f32[n', 2] the scan's end points (robot frame, m)
+  valid: Any  # bool[n']
+
+
+class _Rebuilt(NamedTuple):
+  done: Any  # bool: the belief was rebuilt from the keyframes
+  entropy: Any  # its map entropy, nats
+  covered: Any  # its reachable cells believed free
+
+
+def _slam_front(config, world, params, graph, belief, scan, pose, pose_est, cov, active,
+                odometry, first):
+  """The ``scan_matching`` model's front end (:mod:`jaxplore.slam.model`): a keyframe when the
+  odometry since the last one has moved or turned far enough, its scan matched against the
+  belief; the estimate and Σ updated from an accepted match; the keyframe and its odometry edge
+  added to the graph."""
+  increment, odometry_cov = odometry
+  offsets = slam_model.beam_offsets(params, config.n_beams)
+  stride = slam_model.sizes(config).stride
+  stored = slam_model.stored_scan(scan)
+  points, valid = slam_model.scan_points(stored, offsets, config.res, stride)
+  acc_pose = jnp.where(active, motion.compound(graph.acc_pose, increment), graph.acc_pose)
+  # The uncertainty of the dead-reckoned estimate since the last keyframe (the front end's
+  # window) and since the last closure (the loop search's), propagated by Li Eq 17: a heading
+  # error grows the position error along the way.
+  c, s = jnp.cos(pose_est[2] - increment[2]), jnp.sin(pose_est[2] - increment[2])
+  before = pose_est - jnp.stack([c * increment[0] - s * increment[1],
+                                 s * increment[0] + c * increment[1], increment[2]])
+  grow = lambda cov: jnp.where(active, motion.propagate_covariance(cov, before, pose_est,
+                                                                   odometry_cov), cov)
+  acc_cov = grow(graph.acc_cov)
+  n_cap = graph.poses.shape[0]
+  moved = jnp.hypot(acc_pose[0], acc_pose[1])
+  new = (active & ~jnp.bool_(first) & (graph.n_nodes < n_cap)
+         & ((moved >= params.kf_dist) | (jnp.abs(acc_pose[2]) >= params.kf_rot)))
+
+  def register():
+    return slam_model.register(config, params, belief, world.origin, points, valid, pose_est,
+                               acc_cov)
+
+  match = jax.lax.cond(new, register, lambda: _zeros_like(jax.eval_shape(register)))
+  accepted = new & (match.response >= params.slam_min_response)
+  # The match and the odometry since the last keyframe, fused by their covariances: along a
+  # featureless corridor the match's variance is large and the odometry holds the estimate.
+  floor = params.scan_match_sigma ** 2 * jnp.eye(3, dtype=jnp.float32)
+  fused, fused_cov = motion.relocalise(pose_est, acc_cov + 1e-3 * floor, match.pose, match.cov)
+  # Li's planning covariance Σ takes the match as a measurement (Kalman update).
+  _, kalman_cov = motion.relocalise(pose_est, cov, match.pose, match.cov)
+  pose_est = jnp.where(accepted, fused, pose_est)
+  cov = jnp.where(accepted, kalman_cov, cov)
+  # The odometry edge's information, in the previous keyframe's frame (where its relative pose
+  # is measured).
+  previous = graph.poses[jnp.maximum(graph.n_nodes - 1, 0)]
+  edge_cov = jnp.where(accepted, fused_cov, acc_cov + floor)
+  info = slam_model.information(slam_model.in_frame(edge_cov, previous[2]))
+  # The estimate's uncertainty since the last closure (it sizes and gates the loop search):
+  # each keyframe's edge covariance compounded along the chain (Li Eq 17, both in the world
+  # frame), small while matches hold the estimate, growing where they cannot.
+  j1, _ = motion.compounding_jacobians(previous, pose_est)
+  drift_cov = jnp.where(new, j1 @ graph.drift_cov @ j1.T + edge_cov, graph.drift_cov)
+  graph = graph.replace(acc_pose=acc_pose, acc_cov=acc_cov, drift_cov=drift_cov,
+                        matches_rejected=graph.matches_rejected + (new & ~accepted).astype(jnp.int32))
+  graph = slam_model.add_keyframe(graph, new, pose_est, pose, stored, info)
+  if first:
+    graph = graph.replace(ranges=graph.ranges.at[0].set(stored))
+  return pose_est, cov, graph, _Keyframe(new, points, valid)
+
+
+def _slam_back(config, world, params, graph, logodds, robot, pose, pose_est, frame: _Keyframe):
+  """The ``scan_matching`` model's loop closure and back end: a new keyframe looks for a
+  closure; an accepted one is added, the graph optimised, the estimate moved to the keyframe's
+  optimised pose and the belief rebuilt from the keyframes' scans."""
+  offsets = slam_model.beam_offsets(params, config.n_beams)
+  i = graph.n_nodes - 1
+  candidates, ok = slam_model.loop_candidates(config, params, graph, i, pose_est)
+  tries = frame.new & ok[0] & slam_model.loop_armed(graph, pose_est, params)
+
+  def search():
+    return slam_model.close_loop(config, params, graph, i, pose_est, pose, frame.points,
+                                 frame.valid, offsets, world.origin, candidates, ok)
+
+  closure = jax.lax.cond(tries, search, lambda: _zeros_like(jax.eval_shape(search)))
+  before = graph.n_loops
+  graph = slam_model.add_loop(graph, closure, i)
+  graph = graph.replace(loops_rejected=graph.loops_rejected
+                        + (tries & ~closure.found).astype(jnp.int32))
+  closed = graph.n_loops > before
+
+  def back_end(graph, logodds):
+    graph = slam_model.optimise(config, graph)
+    logodds, entropy, covered = slam_model.rebuild(
+        logodds, robot, graph, offsets, world.origin, config.res, world.reachable, params,
+        config.max_range_cells + 1, config.strategy == "lockstep")
+    return graph, logodds, _Rebuilt(jnp.bool_(True), entropy, covered)
+
+  def unchanged(graph, logodds):
+    return graph, logodds, _Rebuilt(jnp.bool_(False), jnp.float32(0.0), jnp.float32(0.0))
+
+  graph, logodds, rebuilt = jax.lax.cond(closed, back_end, unchanged, graph, logodds)
+  pose_est = jnp.where(closed, graph.poses[i], pose_est)
+  graph = graph.replace(drift_cov=jnp.where(closed, 0.0, graph.drift_cov),
+                        closed_at=jnp.where(closed, pose_est[:2], graph.closed_at))
+  return logodds, graph, pose_est, rebuilt
+
+
+def _zeros_like(shapes):
+  return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
 
 def reset(config: SimConfig, world: World, params: Params, key, start_pose=None) -> State:
@@ -260,9 +413,10 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
       memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config),
                                                                       params),
-      graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops) if config.graph_nodes
-             else None))
-  state = _sense(config, world, params, state, k_scan, jnp.bool_(True))
+      graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops,
+                            beams=config.n_beams if config.slam == "scan_matching" else 0)
+             if config.graph_nodes else None))
+  state = _sense(config, world, params, state, k_scan, jnp.bool_(True), first=True)
   return _check_complete(world, params, state)
 
 
@@ -280,6 +434,8 @@ def record(world: World, state: State) -> Record:
     total = jnp.sum(g.chain_w) + jnp.sum(g.loop_w)
     graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
                  dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
+    if g.loop_false is not None:
+      graph.update(loop_closures=g.n_loops, false_closures=jnp.sum(g.loop_false))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
                 coverage=state.covered / world.n_reachable, det_cov=linalg.det3(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),
@@ -439,13 +595,17 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                         time=state.time + jnp.where(busy, params.dt, 0.0),
                         distance=state.distance + delta_d,
                         collisions=state.collisions + collided.astype(jnp.int32))
-  state = _sense(config, world, params, state, k_sense, busy)
-  if config.graph_nodes:
+  odometry_cov = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
+                                            params.odom_noise_phi)
+  if config.slam == "scan_matching":
+    # The SLAM model keeps the graph (keyframes at the matched poses, loop closures by matching).
+    state = _sense(config, world, params, state, k_sense, busy, odometry=(odo, odometry_cov))
+  else:
+    state = _sense(config, world, params, state, k_sense, busy)
+  if config.graph_nodes and config.slam == "oracle":
     # Keyframes at the estimate after relocalisation; odometry edges with the covariance of the
     # simulated odometry error (Eq 16's form, not Li's planning scale); line of sight in the updated
     # belief, sampled at most half a cell apart (loop_radius <= max_loop_cells * res).
-    odometry_cov = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
-                                              params.odom_noise_phi)
     state = state.replace(graph=posegraph.observe(
         state.graph, state.pose_est, odometry_cov, motion.increment(delta_d, delta_phi), busy,
         state.logodds, world.origin, res, params, 2 * config.max_loop_cells + 2))

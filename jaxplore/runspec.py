@@ -32,12 +32,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from jaxplore.config import PARAM_FIELDS, PRESETS, STRATEGIES, ConfigError
+from jaxplore.config import PARAM_FIELDS, PRESETS, SLAM_MODELS, STRATEGIES, ConfigError
 
 # Simulator settings that fix a static shape exactly (not just a bound): Li's effective radius
 # R_e sets the radius of li2020's gain kernel (dpi_min derives it, Eq 5-6), so every value is a
 # compiled program of its own.
-STATIC_PARAMS = ("r_e", "dpi_min")
+STATIC_PARAMS = ("r_e", "dpi_min", "slam_match_beams", "slam_smear", "slam_search_m", "slam_steps",
+                 "slam_fine_steps", "loop_search_m", "loop_smear", "loop_steps", "loop_candidates",
+                 "slam_iterations")
 SIM_PARAMS = PARAM_FIELDS + tuple(n for n in STATIC_PARAMS if n not in PARAM_FIELDS)
 SEED_LIMIT = 2**32  # a PRNG seed is a uint32: larger seeds would alias smaller ones
 AXES = ("world", "planner", "robots", "seed", "robot_seeds")  # what a sweep varies row by row
@@ -162,6 +164,8 @@ class RunSpec:
     plan_window: side in cells of the window a ``windowed`` planner plans on first (0: the whole
       grid always); None: sized from the sensor range.
     pose_noise: noisy odometry, scans integrated at the dead-reckoned estimate.
+    slam: the SLAM model, ``"oracle"`` or ``"scan_matching"``
+      (:attr:`jaxplore.config.SimConfig.slam`); None: ``"oracle"``.
     pose_graph: keep each robot's SLAM pose graph and its metrics (:mod:`jaxplore.posegraph`);
       None: when the planner reads one (ahmed, ags).
     graph_loops: loop-closure capacity of the pose graph; None: the engine's default.
@@ -189,6 +193,7 @@ class RunSpec:
   path_capacity: int | None = None
   plan_window: int | None = None
   pose_noise: bool = False
+  slam: str | None = None
   pose_graph: bool | None = None
   graph_loops: int | None = None
   params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
@@ -236,6 +241,8 @@ class RunSpec:
     if not isinstance(self.pose_noise, (bool, np.bool_)):
       raise ConfigError(f"pose_noise must be true or false, got {self.pose_noise!r}")
     put("pose_noise", bool(self.pose_noise))
+    if self.slam is not None and self.slam not in SLAM_MODELS:
+      raise ConfigError(f"slam must be one of {', '.join(SLAM_MODELS)}, got {self.slam!r}")
     if self.pose_graph is not None:
       if not isinstance(self.pose_graph, (bool, np.bool_)):
         raise ConfigError(f"pose_graph must be true or false, got {self.pose_graph!r}")
@@ -350,6 +357,7 @@ TOML_KEYS = {
     "path_capacity": "waypoints a path may hold",
     "plan_window": "cells of the window a windowed planner plans on first (0: whole grid)",
     "pose_noise": "noisy odometry (true/false)",
+    "slam": "SLAM model: oracle or scan_matching",
     "pose_graph": "keep each robot's SLAM pose graph and its metrics (true/false)",
     "graph_loops": "loop-closure capacity of the pose graph",
     "rate_interval": "metres per interval of Std(E_r)",
@@ -441,6 +449,8 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
   for key in ("pose_noise", "pose_graph"):
     if key in data:
       kwargs[key] = typed(key, bool, "true or false")
+  if "slam" in data:
+    kwargs["slam"] = typed("slam", str, "oracle or scan_matching")
   if "start" in data:
     kwargs["start"] = typed("start", (str, list), "'x,y[,theta]' or [x, y, theta]")
   if "out" in data:

@@ -1,0 +1,418 @@
+"""The ``scan_matching`` SLAM model: one robot's graph SLAM, as Karto / slam_toolbox run it.
+
+Every motion step the robot dead-reckons its estimate from noisy odometry. When the odometry
+since the last keyframe has moved ``kf_dist`` metres or turned ``kf_rot`` radians, the scan is a
+new keyframe (Karto's ``minimum_travel_distance`` / ``minimum_travel_heading``):
+
+1. **Front end** (:func:`register`): the scan is registered against the robot's *own belief*
+   (never the truth) around the dead-reckoned prediction by correlative scan matching
+   (:func:`jaxplore.slam.scan_matching.match`, Olson 2009), over a window of three standard
+   deviations of the odometry covariance accumulated since the last keyframe. A match whose
+   response is at least ``slam_min_response`` replaces the estimate, and Li et al.'s planning
+   covariance Σ (Eq 16-17) takes it as a measurement of covariance the match's (a Kalman update);
+   otherwise the robot dead-reckons on.
+2. The keyframe joins the graph: its estimated and true pose, its scan, and an odometry edge from
+   the previous keyframe (the relative pose of the two estimates; the match's information, or the
+   odometry's when the match was refused).
+3. **Loop closure** (:func:`close_loop`): the scan is matched against a local map drawn from the
+   stored scans of up to ``loop_candidates`` older keyframes (at least ``loop_min_age`` keyframes
+   back, within ``loop_radius`` of the estimate), over a window of three standard deviations of
+   the odometry covariance accumulated since the last closure. A closure is accepted at a
+   response of at least ``loop_min_response`` and a positional variance of at most
+   ``loop_max_variance`` (Karto's thresholds) and within ``loop_gate`` (Mahalanobis distance²)
+   of the estimate; it is *false* when the truth's relative pose lies outside its own 99 %
+   bound (counted, never corrected: a real SLAM cannot tell).
+4. **Back end** on a closure: SE(2) pose-graph optimisation of every keyframe
+   (:func:`jaxplore.slam.optimiser.optimise`), the estimate set to the current keyframe's
+   optimised pose, and the belief rebuilt from the keyframes' stored scans at the optimised poses
+   (:func:`rebuild`), as Karto and slam_toolbox build their occupancy grids.
+
+One graph: the keyframes, edges and D-optimality weights are the
+:class:`jaxplore.posegraph.PoseGraph` the graph-aware planners read (Ahmed et al. 2024; Placed &
+Castellanos 2021): an edge's weight is the D-optimality of its information matrix.
+
+All functions are of one robot and fixed shapes; the engine calls them inside its per-robot step
+(:mod:`jaxplore.robot`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplore import linalg, mapping, motion, sensor
+from jaxplore.posegraph import PoseGraph
+from jaxplore.slam import optimiser, scan_matching
+
+
+def relative(a, b):
+  """Pose ``b`` in ``a``'s frame, ``a⁻¹ ⊕ b`` (the inverse of Li Eq 9's compounding)."""
+  c, s = jnp.cos(a[2]), jnp.sin(a[2])
+  dx, dy = b[0] - a[0], b[1] - a[1]
+  return jnp.stack([c * dx + s * dy, -s * dx + c * dy, motion.wrap_angle(b[2] - a[2])])
+
+
+def d_optimality_of_information(info):
+  """``det(Ω)^(1/3)`` of a 3x3 information matrix: the D-optimality edge weight of Ahmed Eq 8
+  (``exp(Σ log λ_i / 3)``) without an eigensolver."""
+  return jnp.cbrt(jnp.maximum(linalg.det3(info), 0.0))
+
+
+def information(cov):
+  """The information matrix of a 3x3 covariance, symmetrised."""
+  info = linalg.inv3(cov)
+  return 0.5 * (info + jnp.swapaxes(info, -1, -2))
+
+
+def in_frame(cov, theta):
+  """A world-frame (x, y, θ) covariance expressed in the frame of a pose with heading ``theta``
+  (the frame an edge's relative pose is measured in): ``Rᵀ Σ R``."""
+  c, s = jnp.cos(theta), jnp.sin(theta)
+  zero, one = jnp.zeros_like(c), jnp.ones_like(c)
+  rot = jnp.array([[c, -s, zero], [s, c, zero], [zero, zero, one]])
+  return rot.T @ cov @ rot
+
+
+# --- scans ---------------------------------------------------------------------------------------
+
+
+def beam_offsets(params, n_beams: int):
+  """f32[n] the beams' angles in the robot's frame (:func:`jaxplore.sensor.beam_angles` at 0)."""
+  return sensor.beam_angles(jnp.float32(0.0), params.fov, n_beams)
+
+
+def stored_scan(scan: sensor.Scan):
+  """f16[n]: a scan as a keyframe keeps it: the range in cells, negated for a beam that hit
+  nothing (so a range alone says whether the beam ended on an obstacle)."""
+  return jnp.where(scan.hit, scan.ranges, -scan.ranges).astype(jnp.float16)
+
+
+# A measured range ends on a wall's face, and the wall's cell centre lies half a cell further on
+# average: end points are taken that much further along their beams wherever a scan's end is
+# matched or drawn. Karto's 1 cm correlation grid makes the difference negligible; on 5-20 cm
+# grids it is not (a point exactly on a face falls in the free cell in front of it for a beam
+# travelling toward -x or -y, one cell short: a bias of a cell in loop closures).
+END_PUSH_CELLS = 0.5
+
+
+def scan_points(ranges, offsets, res: float, stride: int):
+  """Every ``stride``-th beam's end point in the robot's frame (f32[n', 2] m) and whether it
+  ended on an obstacle (bool[n']): the points a scan match scores. ``ranges`` as
+  :func:`stored_scan` gives them."""
+  ranges = ranges[::stride].astype(jnp.float32)
+  offsets = offsets[::stride]
+  hit = ranges > 0
+  r = jnp.abs(ranges) * res + jnp.where(hit, END_PUSH_CELLS * res, 0.0)
+  return jnp.stack([r * jnp.cos(offsets), r * jnp.sin(offsets)], axis=-1), hit
+
+
+def _crop_start(centre_cell, side: int, size: int):
+  return jnp.clip(centre_cell - side // 2, 0, size - side)
+
+
+def crop(grid, origin, res: float, centre_xy, side: tuple[int, int]):
+  """The ``side`` (rows, cols) window of ``grid`` nearest to being centred on ``centre_xy``
+  (inside the grid) and the metres of its lower-left corner."""
+  h, w = grid.shape
+  cell = jnp.floor((centre_xy[::-1] - origin[::-1]) / res).astype(jnp.int32)  # (row, col)
+  r0 = _crop_start(cell[0], side[0], h)
+  c0 = _crop_start(cell[1], side[1], w)
+  window = jax.lax.dynamic_slice(grid, (r0, c0), side)
+  return window, origin + res * jnp.stack([c0, r0]).astype(jnp.float32)
+
+
+class Sizes(NamedTuple):
+  """Static sizes of the SLAM model, from a :class:`jaxplore.config.SimConfig`."""
+
+  stride: int  # every stride-th beam is scored by a match
+  crop: tuple[int, int]  # the belief window the front end matches against
+  loop_crop: tuple[int, int]  # the local map a loop closure is matched against
+  smear_cells: int  # the correlation field's kernel radius, front end
+  loop_smear_cells: int  # and loop closure
+  window: scan_matching.Window  # coarse search, front end
+  loop_window: scan_matching.Window  # coarse search, loop closure
+  fine: scan_matching.Window
+
+
+def sizes(config) -> Sizes:
+  """The static sizes a :class:`~jaxplore.config.SimConfig` implies."""
+  res = config.res
+  stride = max(1, config.n_beams // config.slam_match_beams)
+
+  def side(search_m):
+    half = config.max_range_cells + math.ceil(search_m / res) + 2
+    return (min(2 * half + 1, config.height), min(2 * half + 1, config.width))
+
+  smear = lambda sigma: max(1, scan_matching.smear_radius(sigma, res))
+  return Sizes(stride=stride, crop=side(config.slam_search_m), loop_crop=side(config.loop_search_m),
+               smear_cells=smear(config.slam_smear), loop_smear_cells=smear(config.loop_smear),
+               window=scan_matching.Window(config.slam_steps, config.slam_steps),
+               loop_window=scan_matching.Window(config.loop_steps, config.slam_steps),
+               fine=scan_matching.Window(config.slam_fine_steps, config.slam_fine_steps))
+
+
+def _penalties(params):
+  return scan_matching.Penalties(
+      distance_deviation=params.slam_distance_penalty, angle_deviation=params.slam_angle_penalty,
+      minimum_distance=params.slam_min_distance_penalty,
+      minimum_angle=params.slam_min_angle_penalty)
+
+
+def _half_extents(cov, params, max_xy: float, min_xy):
+  """The search's half-widths: three standard deviations of ``cov``, within bounds."""
+  sigma_xy = jnp.sqrt(jnp.maximum(jnp.maximum(cov[0, 0], cov[1, 1]), 0.0))
+  sigma_theta = jnp.sqrt(jnp.maximum(cov[2, 2], 0.0))
+  half_xy = jnp.clip(3.0 * sigma_xy, min_xy, max_xy)
+  half_angle = jnp.clip(3.0 * sigma_theta, params.slam_min_angle, params.slam_max_angle)
+  return half_xy, half_angle
+
+
+# --- front end -----------------------------------------------------------------------------------
+
+
+def register(config, params, logodds, origin, points, valid, prior, odometry_cov):
+  """The front end: the scan's end points (robot frame) matched against the robot's belief
+  around ``prior`` (:class:`jaxplore.slam.scan_matching.Match`)."""
+  sz = sizes(config)
+  occupied = logodds > mapping.logit(params.p_occ)
+  window, corner = crop(occupied, origin, config.res, prior[:2], sz.crop)
+  field = scan_matching.smear(window, config.res, config.slam_smear, sz.smear_cells)
+  half_xy, half_angle = _half_extents(odometry_cov, params, config.slam_search_m, config.res)
+  return scan_matching.match(field, corner, config.res, points, valid, prior, half_xy, half_angle,
+                             sz.window, sz.fine, _penalties(params))
+
+
+# --- the graph -----------------------------------------------------------------------------------
+
+
+def add_keyframe(graph: PoseGraph, new, pose, truth, ranges, info) -> PoseGraph:
+  """Keyframe ``n_nodes`` at the estimate ``pose`` (and ``truth``) with its scan, joined to the
+  previous keyframe by an edge of information ``info`` (nothing when ``new`` is False)."""
+  n_cap = graph.poses.shape[0]
+  i = graph.n_nodes
+  slot = jnp.where(new, i, n_cap)
+  previous = graph.poses[jnp.maximum(i - 1, 0)]
+  put = lambda a, v: a.at[slot].set(v.astype(a.dtype), mode="drop")
+  return graph.replace(
+      poses=put(graph.poses, pose), truth=put(graph.truth, truth),
+      chain_measured=put(graph.chain_measured, relative(previous, pose)),
+      chain_info=put(graph.chain_info, info),
+      chain_w=put(graph.chain_w, d_optimality_of_information(info)),
+      ranges=put(graph.ranges, ranges), n_nodes=i + new.astype(jnp.int32),
+      acc_pose=jnp.where(new, 0.0, graph.acc_pose), acc_cov=jnp.where(new, 0.0, graph.acc_cov))
+
+
+class Closure(NamedTuple):
+  """A loop-closure search's outcome."""
+
+  found: jax.Array  # bool: accepted
+  older: jax.Array  # i32 the older keyframe the edge joins
+  measured: jax.Array  # f32[3] the new keyframe's pose in the older one's frame
+  info: jax.Array  # f32[3, 3]
+  false: jax.Array  # bool: measured is wrong by more than the false-closure tolerance
+  pose: jax.Array  # f32[3] the matched pose
+
+
+def facing(x, y, hit, origin_xy, view_xy, res: float, neighbour_cells: float = 3.0):
+  """Which of a scan's end points (f32[n] ``x``, ``y`` in beam order, seen from ``origin_xy``)
+  lie on a wall face that ``view_xy`` sees from the same side: Karto's ``FindValidPoints``,
+  which drops the points of walls whose far side the matched scan is on (a robot in the next
+  room would otherwise match its wall's near face to the far face). A point's face runs to its
+  neighbouring beam's end point (the next, else the previous), when that lies within
+  ``neighbour_cells``; a point with neither is dropped."""
+  def neighbour(shift):
+    nx, ny, nh = (jnp.roll(a, shift) for a in (x, y, hit))
+    near = nh & (jnp.hypot(nx - x, ny - y) <= neighbour_cells * res)
+    return nx, ny, near
+
+  nx1, ny1, near1 = neighbour(-1)
+  nx0, ny0, near0 = neighbour(1)
+  nx, ny = jnp.where(near1, nx1, nx0), jnp.where(near1, ny1, ny0)
+  dx, dy = nx - x, ny - y
+  side = lambda p: dx * (p[1] - y) - dy * (p[0] - x)
+  return hit & (near1 | near0) & (side(origin_xy) * side(view_xy) > 0)
+
+
+def local_map(graph: PoseGraph, candidates, ok, offsets, res: float, centre_xy, side, origin):
+  """bool[side]: the end points of the candidate keyframes' stored scans at their estimated
+  poses (those facing ``centre_xy``, :func:`facing`), drawn into a window of the grid's lattice
+  around ``centre_xy``; and its corner (m)."""
+  rows = jnp.floor((centre_xy[1] - origin[1]) / res).astype(jnp.int32) - side[0] // 2
+  cols = jnp.floor((centre_xy[0] - origin[0]) / res).astype(jnp.int32) - side[1] // 2
+  corner = origin + res * jnp.stack([cols, rows]).astype(jnp.float32)
+
+  def ends(k):
+    ranges = graph.ranges[k].astype(jnp.float32)
+    pose = graph.poses[k]
+    hit = ranges > 0
+    angle = pose[2] + offsets
+    r = jnp.abs(ranges) * res
+    seen = facing(pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle), hit, pose[:2],
+                  centre_xy, res)
+    r = r + END_PUSH_CELLS * res
+    return pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle), seen
+
+  x, y, hit = jax.vmap(ends)(candidates)
+  hit = hit & ok[:, None]
+  r = jnp.floor((y - corner[1]) / res).astype(jnp.int32)
+  c = jnp.floor((x - corner[0]) / res).astype(jnp.int32)
+  r = jnp.where(hit, r, side[0])  # out of the window: dropped
+  grid = jnp.zeros(side, bool).at[r.ravel(), c.ravel()].set(True, mode="drop",
+                                                            wrap_negative_indices=False)
+  return grid, corner
+
+
+def loop_candidates(config, params, graph: PoseGraph, i, pose):
+  """The older keyframes a loop closure of keyframe ``i`` (at ``pose``) is matched against: up to
+  ``loop_candidates`` nearest within ``loop_radius``, at least ``loop_min_age`` keyframes older,
+  never one linked to ``i`` by a chain of keyframes that stayed within the radius (Karto's
+  near-linked scans; here some keyframe between the two lay outside it: the robot left and came
+  back). Returns (i32[K] candidates nearest first, bool[K] which are real)."""
+  n_cap = graph.poses.shape[0]
+  index = jnp.arange(n_cap)
+  offset = graph.poses[:, :2] - pose[None, :2]
+  dist = jnp.sqrt(jnp.sum(offset * offset, axis=-1))
+  between = (index < i) & (dist > params.loop_radius)
+  left_after = jnp.flip(jax.lax.cummax(jnp.flip(between.astype(jnp.int32)))).astype(bool)
+  left_after = jnp.concatenate([left_after[1:], jnp.zeros((1,), bool)])  # some k > j left
+  eligible = ((index.astype(jnp.float32) <= i.astype(jnp.float32) - params.loop_min_age)
+              & (dist <= params.loop_radius) & left_after)
+  score, candidates = jax.lax.top_k(jnp.where(eligible, -dist, -jnp.inf),
+                                    min(config.loop_candidates, n_cap))
+  return candidates, jnp.isfinite(score)
+
+
+def close_loop(config, params, graph: PoseGraph, i, pose, truth, points, valid, offsets,
+               origin, candidates, ok) -> Closure:
+  """Looks for a loop closure of the new keyframe ``i`` (at estimate ``pose``, true ``truth``)
+  against the ``candidates`` (:func:`loop_candidates`)."""
+  sz = sizes(config)
+  occupied, corner = local_map(graph, candidates, ok, offsets, config.res, pose[:2], sz.loop_crop,
+                               origin)
+  field = scan_matching.smear(occupied, config.res, config.loop_smear, sz.loop_smear_cells)
+  half_xy, half_angle = _half_extents(graph.drift_cov, params, config.loop_search_m, config.res)
+  # Karto matches a loop closure without the odometry penalty (TryCloseLoop: doPenalize false).
+  m = scan_matching.match(field, corner, config.res, points, valid, pose, half_xy, half_angle,
+                          sz.loop_window, sz.fine, scan_matching.NO_PENALTIES)
+  older = candidates[0]
+  measured = relative(graph.poses[older], m.pose)
+  info = information(in_frame(m.cov, graph.poses[older, 2]))
+  # False: the truth lies outside the closure's own 99 % bound (the edge claims a certainty it
+  # does not have). Along a corridor a closure is uncertain, and says so: not false.
+  miss = measured - relative(graph.truth[older], truth)
+  miss = miss.at[2].set(motion.wrap_angle(miss[2]))
+  false = miss @ info @ miss > params.loop_gate
+  # A closure must agree with where the robot believes it is, within the uncertainty of that
+  # belief and of the match (a Mahalanobis gate, chi-square with 3 degrees of freedom): two
+  # alike rooms a few metres apart otherwise make a false closure.
+  innovation = m.pose - pose
+  innovation = innovation.at[2].set(motion.wrap_angle(innovation[2]))
+  gate = innovation @ linalg.inv3(graph.drift_cov + m.cov) @ innovation
+  found = (ok[0] & (m.response >= params.loop_min_response) & (gate <= params.loop_gate)
+           & (jnp.maximum(m.cov[0, 0], m.cov[1, 1]) <= params.loop_max_variance))
+  return Closure(found=found, older=older, measured=measured, info=info,
+                 false=false, pose=m.pose)
+
+
+def loop_armed(graph: PoseGraph, pose, params):
+  """Whether the robot may look for a loop closure: never yet closed one, or has since moved
+  more than ``loop_radius`` from where it did (Karto finds no closure among scans already linked
+  to the new one: after a closure, the revisited place is linked)."""
+  offset = pose[:2] - graph.closed_at
+  return ~jnp.all(jnp.isfinite(graph.closed_at)) | (jnp.hypot(offset[0], offset[1])
+                                                    > params.loop_radius)
+
+
+def add_loop(graph: PoseGraph, closure: Closure, i) -> PoseGraph:
+  """The closure's edge (older keyframe -> keyframe ``i``) when found and there is room."""
+  m_cap = graph.loops.shape[0]
+  room = graph.n_loops < m_cap
+  write = closure.found & room
+  slot = jnp.where(write, graph.n_loops, m_cap)
+  put = lambda a, v: a.at[slot].set(v.astype(a.dtype), mode="drop")
+  return graph.replace(
+      loops=put(graph.loops, jnp.stack([closure.older, i])),
+      loop_w=put(graph.loop_w, d_optimality_of_information(closure.info)),
+      loop_measured=put(graph.loop_measured, closure.measured),
+      loop_info=put(graph.loop_info, closure.info), loop_false=put(graph.loop_false, closure.false),
+      n_loops=graph.n_loops + write.astype(jnp.int32),
+      loops_dropped=graph.loops_dropped + (closure.found & ~room).astype(jnp.int32))
+
+
+def graph_edges(graph: PoseGraph) -> optimiser.Edges:
+  """The odometry and loop edges of ``graph`` as the optimiser takes them."""
+  n_cap = graph.poses.shape[0]
+  k = jnp.arange(1, n_cap)
+  return optimiser.Edges(
+      src=jnp.concatenate([k - 1, graph.loops[:, 0]]).astype(jnp.int32),
+      dst=jnp.concatenate([k, graph.loops[:, 1]]).astype(jnp.int32),
+      measured=jnp.concatenate([graph.chain_measured[1:], graph.loop_measured]),
+      information=jnp.concatenate([graph.chain_info[1:], graph.loop_info]),
+      valid=jnp.concatenate([k < graph.n_nodes,
+                             jnp.arange(graph.loops.shape[0]) < graph.n_loops]))
+
+
+def optimise(config, graph: PoseGraph) -> PoseGraph:
+  """The back end: every keyframe's pose re-estimated from all edges (keyframe 0 fixed)."""
+  valid = jnp.arange(graph.poses.shape[0]) < graph.n_nodes
+  result = optimiser.optimise(graph.poses, valid, graph_edges(graph),
+                              max_iterations=config.slam_iterations)
+  poses = jnp.where(valid[:, None], result.poses, graph.poses)
+  poses = poses.at[:, 2].set(motion.wrap_angle(poses[:, 2]))
+  return graph.replace(poses=poses, optimisations=graph.optimisations + 1)
+
+
+# --- the map from the keyframes ------------------------------------------------------------------
+
+
+def keyframe_observation(graph: PoseGraph, k, offsets, origin, res: float, shape, n_cross: int,
+                         active=True):
+  """What keyframe ``k``'s stored scan says about the grid seen from its estimated pose (the
+  observation layout of :func:`jaxplore.sensor.mark_observed`; nothing when ``active`` is
+  False): each beam re-traced from the pose, its end cell the one its end point, pushed
+  :data:`END_PUSH_CELLS` along the beam, lies in."""
+  pose = graph.poses[k]
+  ranges = graph.ranges[k].astype(jnp.float32)
+  hit = ranges > 0
+  r = jnp.abs(ranges)
+  angles = pose[2] + offsets
+  dirs = sensor.directions(angles)
+  u0 = (pose[0] - origin[0]) / res
+  v0 = (pose[1] - origin[1]) / res
+  end_u = u0 + (r + END_PUSH_CELLS) * dirs[0]
+  end_v = v0 + (r + END_PUSH_CELLS) * dirs[1]
+  end_rows, end_cols = jnp.floor(end_v).astype(jnp.int32), jnp.floor(end_u).astype(jnp.int32)
+  scan = sensor.Scan(angles=angles, ranges=r, hit=hit, hit_rows=end_rows, hit_cols=end_cols,
+                     true_ranges=r)
+  return sensor.mark_observed(sensor.empty_observation(shape), shape, scan, u0, v0, end_rows,
+                              end_cols, n_cross, active, dirs)
+
+
+def rebuild(logodds, robot, graph: PoseGraph, offsets, origin, res: float, reachable, params,
+            n_cross: int, whole_grid: bool):
+  """Robot ``robot``'s belief (in the batch ``logodds``, f32[N, H, W]) re-integrated from its
+  keyframes' scans at their poses. Returns ``(logodds, entropy, covered)``: the new belief and
+  its map entropy (nats) and count of reachable cells believed free."""
+  _, h, w = logodds.shape
+  logodds = jax.lax.dynamic_update_index_in_dim(logodds, jnp.zeros((h, w), logodds.dtype), robot, 0)
+
+  def one(k, logodds):
+    observed = keyframe_observation(graph, k, offsets, origin, res, (h, w), n_cross)
+    logodds, _, _ = mapping.integrate_observation(
+        logodds, robot, sensor.observation_tiles(observed, (h, w)), reachable, params,
+        whole_grid=whole_grid)
+    return logodds
+
+  logodds = jax.lax.fori_loop(0, graph.n_nodes, one, logodds)
+  grid = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
+  entropy = jnp.sum(mapping.entropy_of_logodds(grid))
+  covered = jnp.sum(reachable & (grid < mapping.logit(params.p_free))).astype(jnp.float32)
+  return logodds, entropy, covered
+
+
+__all__ = ["Closure", "Sizes", "add_keyframe", "add_loop", "close_loop", "crop",
+           "graph_edges", "information", "keyframe_observation", "local_map", "optimise",
+           "rebuild", "register", "relative", "scan_points", "sizes", "stored_scan"]
