@@ -196,16 +196,20 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       return seen, est_uv, end_rows, end_cols, est_dirs
 
     if slam:
-      own_graph = jax.tree.map(lambda g: g[robot], graph)
+      # The robot's graph without its stored scans: those (most of the graph's bytes) stay in
+      # the batch's array, written a row per keyframe and read only to close a loop.
+      own_graph = jax.tree.map(lambda g: g[robot], graph.replace(ranges=None))
       own_grid = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
       pose_est, cov, own_graph, frame = _slam_front(config, world, params, own_graph, own_grid,
                                                     scan, pose, pose_est, cov, active, odometry,
                                                     first)
+      slot = jnp.where(frame.new | first, own_graph.n_nodes - 1, own_graph.poses.shape[0])
+      ranges = graph.ranges.at[robot, slot].set(frame.stored, mode="drop")
       # As slam_toolbox builds its grid: only keyframes' scans, each re-traced from the
       # keyframe's estimated pose (what a rebuild after a loop closure re-integrates).
       observed = slam_model.keyframe_observation(
-          own_graph, own_graph.n_nodes - 1, slam_model.beam_offsets(params, config.n_beams),
-          world.origin, res, shape, n_cross, active=frame.new | first)
+          pose_est, frame.stored, slam_model.beam_offsets(params, config.n_beams), world.origin,
+          res, shape, n_cross, active=frame.new | first)
       old_end = jnp.float32(0.0)
     else:
       seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
@@ -241,11 +245,12 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
         logodds, robot, sensor.observation_tiles(observed, shape), world.reachable, params,
         after=jnp.sum(old_end), whole_grid=whole_grid)
     if slam:
-      logodds, own_graph, pose_est, rebuilt = _slam_back(config, world, params, own_graph, logodds,
-                                                         robot, pose, pose_est, frame)
+      logodds, own_graph, pose_est, rebuilt = _slam_back(config, world, params, own_graph, ranges,
+                                                         logodds, robot, pose, pose_est, frame)
       d_entropy = jnp.where(rebuilt.done, rebuilt.entropy - totals[0], d_entropy)
       d_covered = jnp.where(rebuilt.done, rebuilt.covered - totals[1], d_covered)
-      graph = jax.tree.map(lambda g, new: g.at[robot].set(new), graph, own_graph)
+      graph = jax.tree.map(lambda g, new: g.at[robot].set(new), graph.replace(ranges=None),
+                           own_graph).replace(ranges=ranges)
     if entropy_map is not None:
       ru_cells = jnp.where(active, params.alpha * config.r_e / res, 0.0)
       entropy_map = mapping.update_entropy_map(
@@ -275,6 +280,7 @@ class _Keyframe(NamedTuple):
   """What the SLAM front end hands its back end within one step."""
 
   new: Any  # bool: this scan is a new keyframe
+  stored: Any  # f16[n] the scan as a keyframe keeps it (slam.model.stored_scan)
   points: Any  # f32[n', 2] the scan's end points (robot frame, m)
   valid: Any  # bool[n']
 
@@ -337,13 +343,12 @@ def _slam_front(config, world, params, graph, belief, scan, pose, pose_est, cov,
   drift_cov = jnp.where(new, j1 @ graph.drift_cov @ j1.T + edge_cov, graph.drift_cov)
   graph = graph.replace(acc_pose=acc_pose, acc_cov=acc_cov, drift_cov=drift_cov,
                         matches_rejected=graph.matches_rejected + (new & ~accepted).astype(jnp.int32))
-  graph = slam_model.add_keyframe(graph, new, pose_est, pose, stored, info)
-  if first:
-    graph = graph.replace(ranges=graph.ranges.at[0].set(stored))
-  return pose_est, cov, graph, _Keyframe(new, points, valid)
+  graph = slam_model.add_keyframe(graph, new, pose_est, pose, info)
+  return pose_est, cov, graph, _Keyframe(new, stored, points, valid)
 
 
-def _slam_back(config, world, params, graph, logodds, robot, pose, pose_est, frame: _Keyframe):
+def _slam_back(config, world, params, graph, ranges, logodds, robot, pose, pose_est,
+               frame: _Keyframe):
   """The ``scan_matching`` model's loop closure and back end: a new keyframe looks for a
   closure; an accepted one is added, the graph optimised, the estimate moved to the keyframe's
   optimised pose and the belief rebuilt from the keyframes' scans."""
@@ -352,9 +357,11 @@ def _slam_back(config, world, params, graph, logodds, robot, pose, pose_est, fra
   candidates, ok = slam_model.loop_candidates(config, params, graph, i, pose_est)
   tries = frame.new & ok[0] & slam_model.loop_armed(graph, pose_est, params)
 
+  own_scans = lambda: jax.lax.dynamic_index_in_dim(ranges, robot, 0, keepdims=False)
+
   def search():
-    return slam_model.close_loop(config, params, graph, i, pose_est, pose, frame.points,
-                                 frame.valid, offsets, world.origin, candidates, ok)
+    return slam_model.close_loop(config, params, graph, own_scans(), i, pose_est, pose,
+                                 frame.points, frame.valid, offsets, world.origin, candidates, ok)
 
   closure = jax.lax.cond(tries, search, lambda: _zeros_like(jax.eval_shape(search)))
   before = graph.n_loops
@@ -366,8 +373,8 @@ def _slam_back(config, world, params, graph, logodds, robot, pose, pose_est, fra
   def back_end(graph, logodds):
     graph = slam_model.optimise(config, graph)
     logodds, entropy, covered = slam_model.rebuild(
-        logodds, robot, graph, offsets, world.origin, config.res, world.reachable, params,
-        config.max_range_cells + 1, config.strategy == "lockstep")
+        logodds, robot, graph, own_scans(), offsets, world.origin, config.res, world.reachable,
+        params, config.max_range_cells + 1, config.strategy == "lockstep")
     return graph, logodds, _Rebuilt(jnp.bool_(True), entropy, covered)
 
   def unchanged(graph, logodds):

@@ -188,9 +188,11 @@ def register(config, params, logodds, origin, points, valid, prior, odometry_cov
 # --- the graph -----------------------------------------------------------------------------------
 
 
-def add_keyframe(graph: PoseGraph, new, pose, truth, ranges, info) -> PoseGraph:
-  """Keyframe ``n_nodes`` at the estimate ``pose`` (and ``truth``) with its scan, joined to the
-  previous keyframe by an edge of information ``info`` (nothing when ``new`` is False)."""
+def add_keyframe(graph: PoseGraph, new, pose, truth, info) -> PoseGraph:
+  """Keyframe ``n_nodes`` at the estimate ``pose`` (and ``truth``), joined to the previous
+  keyframe by an edge of information ``info`` (nothing when ``new`` is False). Its scan is the
+  caller's to store (:attr:`PoseGraph.ranges` row ``n_nodes``: the engine keeps the batch's
+  scans apart, written a row at a time)."""
   n_cap = graph.poses.shape[0]
   i = graph.n_nodes
   slot = jnp.where(new, i, n_cap)
@@ -201,7 +203,7 @@ def add_keyframe(graph: PoseGraph, new, pose, truth, ranges, info) -> PoseGraph:
       chain_measured=put(graph.chain_measured, relative(previous, pose)),
       chain_info=put(graph.chain_info, info),
       chain_w=put(graph.chain_w, d_optimality_of_information(info)),
-      ranges=put(graph.ranges, ranges), n_nodes=i + new.astype(jnp.int32),
+      n_nodes=i + new.astype(jnp.int32),
       acc_pose=jnp.where(new, 0.0, graph.acc_pose), acc_cov=jnp.where(new, 0.0, graph.acc_cov))
 
 
@@ -236,8 +238,10 @@ def facing(x, y, hit, origin_xy, view_xy, res: float, neighbour_cells: float = 3
   return hit & (near1 | near0) & (side(origin_xy) * side(view_xy) > 0)
 
 
-def local_map(graph: PoseGraph, candidates, ok, offsets, res: float, centre_xy, side, origin):
-  """bool[side]: the end points of the candidate keyframes' stored scans at their estimated
+def local_map(graph: PoseGraph, ranges, candidates, ok, offsets, res: float, centre_xy, side,
+              origin):
+  """bool[side]: the end points of the candidate keyframes' stored scans (``ranges``, f16[N, B]
+  as :func:`stored_scan` gives them) at their estimated
   poses (those facing ``centre_xy``, :func:`facing`), drawn into a window of the grid's lattice
   around ``centre_xy``; and its corner (m)."""
   rows = jnp.floor((centre_xy[1] - origin[1]) / res).astype(jnp.int32) - side[0] // 2
@@ -245,11 +249,11 @@ def local_map(graph: PoseGraph, candidates, ok, offsets, res: float, centre_xy, 
   corner = origin + res * jnp.stack([cols, rows]).astype(jnp.float32)
 
   def ends(k):
-    ranges = graph.ranges[k].astype(jnp.float32)
+    scan = ranges[k].astype(jnp.float32)
     pose = graph.poses[k]
-    hit = ranges > 0
+    hit = scan > 0
     angle = pose[2] + offsets
-    r = jnp.abs(ranges) * res
+    r = jnp.abs(scan) * res
     seen = facing(pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle), hit, pose[:2],
                   centre_xy, res)
     r = r + END_PUSH_CELLS * res
@@ -285,13 +289,13 @@ def loop_candidates(config, params, graph: PoseGraph, i, pose):
   return candidates, jnp.isfinite(score)
 
 
-def close_loop(config, params, graph: PoseGraph, i, pose, truth, points, valid, offsets,
+def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points, valid, offsets,
                origin, candidates, ok) -> Closure:
   """Looks for a loop closure of the new keyframe ``i`` (at estimate ``pose``, true ``truth``)
-  against the ``candidates`` (:func:`loop_candidates`)."""
+  against the ``candidates`` (:func:`loop_candidates`; their scans in ``ranges``)."""
   sz = sizes(config)
-  occupied, corner = local_map(graph, candidates, ok, offsets, config.res, pose[:2], sz.loop_crop,
-                               origin)
+  occupied, corner = local_map(graph, ranges, candidates, ok, offsets, config.res, pose[:2],
+                               sz.loop_crop, origin)
   field = scan_matching.smear(occupied, config.res, config.loop_smear, sz.loop_smear_cells)
   half_xy, half_angle = _half_extents(graph.drift_cov, params, config.loop_search_m, config.res)
   # Karto matches a loop closure without the odometry penalty (TryCloseLoop: doPenalize false).
@@ -355,11 +359,20 @@ def graph_edges(graph: PoseGraph) -> optimiser.Edges:
                              jnp.arange(graph.loops.shape[0]) < graph.n_loops]))
 
 
+WOODBURY_LOOPS = 32
+
+
 def optimise(config, graph: PoseGraph) -> PoseGraph:
   """The back end: every keyframe's pose re-estimated from all edges (keyframe 0 fixed)."""
   valid = jnp.arange(graph.poses.shape[0]) < graph.n_nodes
+  # The preconditioner takes up to WOODBURY_LOOPS closures exactly (a 3K x 3K factorisation
+  # per iteration, K the loop slots it covers); any further ones are left to the conjugate
+  # gradients, which then need more iterations. A robot closes a loop once per visit to an
+  # old place: a few dozen in an episode.
   result = optimiser.optimise(graph.poses, valid, graph_edges(graph),
-                              max_iterations=config.slam_iterations)
+                              max_iterations=config.slam_iterations,
+                              loop_capacity=min(WOODBURY_LOOPS, graph.loops.shape[0]),
+                              cg_max_iterations=50)
   poses = jnp.where(valid[:, None], result.poses, graph.poses)
   poses = poses.at[:, 2].set(motion.wrap_angle(poses[:, 2]))
   return graph.replace(poses=poses, optimisations=graph.optimisations + 1)
@@ -368,14 +381,13 @@ def optimise(config, graph: PoseGraph) -> PoseGraph:
 # --- the map from the keyframes ------------------------------------------------------------------
 
 
-def keyframe_observation(graph: PoseGraph, k, offsets, origin, res: float, shape, n_cross: int,
+def keyframe_observation(pose, scan, offsets, origin, res: float, shape, n_cross: int,
                          active=True):
-  """What keyframe ``k``'s stored scan says about the grid seen from its estimated pose (the
-  observation layout of :func:`jaxplore.sensor.mark_observed`; nothing when ``active`` is
-  False): each beam re-traced from the pose, its end cell the one its end point, pushed
-  :data:`END_PUSH_CELLS` along the beam, lies in."""
-  pose = graph.poses[k]
-  ranges = graph.ranges[k].astype(jnp.float32)
+  """What a keyframe's stored scan (f16[B], :func:`stored_scan`) says about the grid seen from
+  its estimated ``pose`` (the observation layout of :func:`jaxplore.sensor.mark_observed`;
+  nothing when ``active`` is False): each beam re-traced from the pose, its end cell the one its
+  end point, pushed :data:`END_PUSH_CELLS` along the beam, lies in."""
+  ranges = scan.astype(jnp.float32)
   hit = ranges > 0
   r = jnp.abs(ranges)
   angles = pose[2] + offsets
@@ -385,22 +397,23 @@ def keyframe_observation(graph: PoseGraph, k, offsets, origin, res: float, shape
   end_u = u0 + (r + END_PUSH_CELLS) * dirs[0]
   end_v = v0 + (r + END_PUSH_CELLS) * dirs[1]
   end_rows, end_cols = jnp.floor(end_v).astype(jnp.int32), jnp.floor(end_u).astype(jnp.int32)
-  scan = sensor.Scan(angles=angles, ranges=r, hit=hit, hit_rows=end_rows, hit_cols=end_cols,
+  seen = sensor.Scan(angles=angles, ranges=r, hit=hit, hit_rows=end_rows, hit_cols=end_cols,
                      true_ranges=r)
-  return sensor.mark_observed(sensor.empty_observation(shape), shape, scan, u0, v0, end_rows,
+  return sensor.mark_observed(sensor.empty_observation(shape), shape, seen, u0, v0, end_rows,
                               end_cols, n_cross, active, dirs)
 
 
-def rebuild(logodds, robot, graph: PoseGraph, offsets, origin, res: float, reachable, params,
-            n_cross: int, whole_grid: bool):
-  """Robot ``robot``'s belief (in the batch ``logodds``, f32[N, H, W]) re-integrated from its
-  keyframes' scans at their poses. Returns ``(logodds, entropy, covered)``: the new belief and
+def rebuild(logodds, robot, graph: PoseGraph, ranges, offsets, origin, res: float, reachable,
+            params, n_cross: int, whole_grid: bool):
+  """Robot ``robot``'s belief (in the batch ``logodds``, f32[R, H, W]) re-integrated from its
+  keyframes' scans (``ranges``, f16[N, B]) at their poses. Returns ``(logodds, entropy, covered)``: the new belief and
   its map entropy (nats) and count of reachable cells believed free."""
   _, h, w = logodds.shape
   logodds = jax.lax.dynamic_update_index_in_dim(logodds, jnp.zeros((h, w), logodds.dtype), robot, 0)
 
   def one(k, logodds):
-    observed = keyframe_observation(graph, k, offsets, origin, res, (h, w), n_cross)
+    observed = keyframe_observation(graph.poses[k], ranges[k], offsets, origin, res, (h, w),
+                                    n_cross)
     logodds, _, _ = mapping.integrate_observation(
         logodds, robot, sensor.observation_tiles(observed, (h, w)), reachable, params,
         whole_grid=whole_grid)

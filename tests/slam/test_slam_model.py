@@ -175,7 +175,7 @@ def test_rebuilt_map_at_the_true_poses_matches_the_truth(slam_drives):
   g = jax.tree.map(jnp.asarray, state.graph).replace(poses=jnp.asarray(state.graph.truth))
   offsets = model.beam_offsets(params, config.n_beams)
   logodds = jnp.zeros((1, config.height, config.width), jnp.float32)
-  logodds, entropy, covered = model.rebuild(logodds, 0, g, offsets, world.origin, RES,
+  logodds, entropy, covered = model.rebuild(logodds, 0, g, g.ranges, offsets, world.origin, RES,
                                             world.reachable, params, config.max_range_cells + 1,
                                             False)
   grid = np.asarray(logodds[0])
