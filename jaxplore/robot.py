@@ -548,8 +548,6 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   # scan integrated at a slightly wrong pose can leave a wall cell believed free, and a planner
   # would send the robot to that "frontier" again and again (seen with pose noise on `campus`).
   blocked = has_waypoint & world.occupied[target[0], target[1]]
-  if config.slam == "scan_matching":
-    blocked = jnp.zeros_like(blocked)  # the waypoint is a belief cell: the collision check decides
   state = _feel_collision(config, world, params, state, target[None], (running & blocked)[None])
   path_len = jnp.where(blocked, state.path_idx, state.path_len)
   has_waypoint = has_waypoint & ~blocked
@@ -560,31 +558,21 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   # its radius (the planner's escape route) goes on.
   next_xy = cell_centre(target, world.origin, res)
   wall_ahead = believed_wall_distance_sq(config, world, params, state, next_xy)
-  # Both in the belief's frame, as the planner saw them (it plans from the estimated pose's cell).
-  wall_here = believed_wall_distance_sq(config, world, params, state, state.pose_est[:2])
+  # Both in the belief's frame, as the planner saw them: it plans from the estimated pose's
+  # cell, so "here" is that cell's centre (measured from the estimate itself, a sub-mm offset
+  # from the centre made a waypoint beside the same wall "nearer" and cut every path there).
+  here = cell_centre(cell_of(state.pose_est[:2], world.origin, res), world.origin, res)
+  wall_here = believed_wall_distance_sq(config, world, params, state, here)
   closes_in = has_waypoint & _within_radius(config, params, wall_ahead) & (wall_ahead < wall_here)
   path_len = jnp.where(closes_in, state.path_idx, path_len)
   has_waypoint = has_waypoint & ~closes_in
   target = jnp.where(has_waypoint, target, state.look_at)
   target_xy = cell_centre(target, world.origin, res)
-  if config.slam == "scan_matching":
-    # The robot steers by its estimate: the turn and drive that take its estimated pose to the
-    # waypoint move its true pose, which may end beside it. Any true wall its disc would touch
-    # there is a collision: with decimetres of pose error, a wall the belief holds may lie
-    # elsewhere than the truth's.
-    look_needed = jnp.any(target != cell_of(state.pose_est[:2], world.origin, res))
-    command = motion.drive_toward(state.pose_est, target_xy, params.v_max, params.w_max,
-                                  params.dt, translate=has_waypoint)
-    heading = motion.wrap_angle(state.pose[2] + command.delta_phi)
-    true_xy = state.pose[:2] + command.delta_d * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
-    drive = command._replace(pose=jnp.concatenate([true_xy, heading[None]]))
-    touched, touching = touched_cells(config, world, params, true_xy)
-  else:
-    look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
-    drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
-                                translate=has_waypoint)
-    touched, touching = touched_cells(config, world, params, target_xy)
-    touching = touching & ~_believed_occupied(config, world, params, state, touched)
+  look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
+  drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
+                              translate=has_waypoint)
+  touched, touching = touched_cells(config, world, params, target_xy)
+  touching = touching & ~_believed_occupied(config, world, params, state, touched)
   collided = running & has_waypoint & (drive.delta_d > 0) & jnp.any(touching)
   path_len = jnp.where(collided, state.path_idx, path_len)
   has_waypoint = has_waypoint & ~collided
