@@ -148,6 +148,10 @@ def closure_figure(world: str, path: Path):
             label="estimated keyframes")
     for a, b in g.loops[:int(g.n_loops)]:
       ax.plot(*np.stack([g.poses[a, :2], g.poses[b, :2]]).T, ":", color="tab:blue", lw=1.5)
+    xy = np.concatenate([g.truth[:n, :2], g.poses[:n, :2]])
+    lo, hi = xy.min(axis=0) - 3.0, xy.max(axis=0) + 3.0
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
     ax.set_title(f"robot {robot}, {title}\nkeyframes {n}, closures {int(g.n_loops)}")
     ax.legend(loc="lower right", fontsize=8)
   fig.tight_layout()
