@@ -29,6 +29,14 @@ def compound(pose_ij, x_jk):
                     wrap_angle(phi + x_jk[2])])
 
 
+def between(pose_a, pose_b):
+  """``a⁻¹ ⊕ b``: pose ``b`` in ``a``'s frame, the inverse of :func:`compound` (GTSAM's
+  ``Pose2::between``)."""
+  c, s = jnp.cos(pose_a[2]), jnp.sin(pose_a[2])
+  dx, dy = pose_b[0] - pose_a[0], pose_b[1] - pose_a[1]
+  return jnp.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(pose_b[2] - pose_a[2])])
+
+
 def compounding_jacobians(pose_ij, pose_ik):
   """``J1⊕`` (Eq 12) and ``J2⊕`` (the right block of Eq 11) of ``X_ik = X_ij ⊕ X_jk``."""
   c, s = jnp.cos(pose_ij[2]), jnp.sin(pose_ij[2])

@@ -89,3 +89,17 @@ def test_jacobian_determinants_are_one():
   j1, j2 = motion.compounding_jacobians(a, b)
   assert abs(float(jnp.linalg.det(j1)) - 1) < 1e-6 and abs(float(jnp.linalg.det(j2)) - 1) < 1e-6
   assert jax.numpy.isfinite(j1).all()
+
+
+def test_between_inverts_compound_and_matches_the_matrix_form():
+  rng = np.random.default_rng(3)
+  for _ in range(5):
+    a = jnp.asarray(rng.uniform([-5, -5, -3], [5, 5, 3]), jnp.float32)
+    x = jnp.asarray(rng.uniform([-2, -2, -3], [2, 2, 3]), jnp.float32)
+    np.testing.assert_allclose(motion.between(a, motion.compound(a, x)), x, atol=1e-5)
+    # The same as the homogeneous matrices' T_a⁻¹ T_b.
+    b = motion.compound(a, x)
+    t = lambda p: np.array([[np.cos(p[2]), -np.sin(p[2]), p[0]], [np.sin(p[2]), np.cos(p[2]), p[1]],
+                            [0, 0, 1]], np.float64)
+    rel = np.linalg.inv(t(np.asarray(a, np.float64))) @ t(np.asarray(b, np.float64))
+    np.testing.assert_allclose(motion.between(a, b)[:2], rel[:2, 2], atol=1e-5)

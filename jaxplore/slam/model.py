@@ -48,13 +48,6 @@ from jaxplore.posegraph import PoseGraph
 from jaxplore.slam import optimiser, scan_matching
 
 
-def relative(a, b):
-  """Pose ``b`` in ``a``'s frame, ``a⁻¹ ⊕ b`` (the inverse of Li Eq 9's compounding)."""
-  c, s = jnp.cos(a[2]), jnp.sin(a[2])
-  dx, dy = b[0] - a[0], b[1] - a[1]
-  return jnp.stack([c * dx + s * dy, -s * dx + c * dy, motion.wrap_angle(b[2] - a[2])])
-
-
 def d_optimality_of_information(info):
   """``det(Ω)^(1/3)`` of a 3x3 information matrix: the D-optimality edge weight of Ahmed Eq 8
   (``exp(Σ log λ_i / 3)``) without an eigensolver."""
@@ -200,7 +193,7 @@ def add_keyframe(graph: PoseGraph, new, pose, truth, info) -> PoseGraph:
   put = lambda a, v: a.at[slot].set(v.astype(a.dtype), mode="drop")
   return graph.replace(
       poses=put(graph.poses, pose), truth=put(graph.truth, truth),
-      chain_measured=put(graph.chain_measured, relative(previous, pose)),
+      chain_measured=put(graph.chain_measured, motion.between(previous, pose)),
       chain_info=put(graph.chain_info, info),
       chain_w=put(graph.chain_w, d_optimality_of_information(info)),
       n_nodes=i + new.astype(jnp.int32),
@@ -302,11 +295,11 @@ def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points,
   m = scan_matching.match(field, corner, config.res, points, valid, pose, half_xy, half_angle,
                           sz.loop_window, sz.fine, scan_matching.NO_PENALTIES)
   older = candidates[0]
-  measured = relative(graph.poses[older], m.pose)
+  measured = motion.between(graph.poses[older], m.pose)
   info = information(in_frame(m.cov, graph.poses[older, 2]))
   # False: the truth lies outside the closure's own 99 % bound (the edge claims a certainty it
   # does not have). Along a corridor a closure is uncertain, and says so: not false.
-  miss = measured - relative(graph.truth[older], truth)
+  miss = measured - motion.between(graph.truth[older], truth)
   miss = miss.at[2].set(motion.wrap_angle(miss[2]))
   false = miss @ info @ miss > params.loop_gate
   # A closure must agree with where the robot believes it is, within the uncertainty of that
@@ -426,6 +419,8 @@ def rebuild(logodds, robot, graph: PoseGraph, ranges, offsets, origin, res: floa
   return logodds, entropy, covered
 
 
-__all__ = ["Closure", "Sizes", "add_keyframe", "add_loop", "close_loop", "crop",
-           "graph_edges", "information", "keyframe_observation", "local_map", "optimise",
-           "rebuild", "register", "relative", "scan_points", "sizes", "stored_scan"]
+__all__ = ["END_PUSH_CELLS", "WOODBURY_LOOPS", "Closure", "Sizes", "add_keyframe", "add_loop",
+           "beam_offsets", "close_loop", "crop", "d_optimality_of_information", "facing",
+           "graph_edges", "in_frame", "information", "keyframe_observation", "local_map",
+           "loop_armed", "loop_candidates", "optimise", "rebuild", "register", "scan_points",
+           "sizes", "stored_scan"]

@@ -142,11 +142,7 @@ def logmap(pose):
   return jnp.stack([hcot * pose[0] + h * pose[1], -h * pose[0] + hcot * pose[1], theta])
 
 
-def between(pose_a, pose_b):
-  """``a⁻¹ ∘ b``: pose b in a's frame (GTSAM's ``Pose2::between``)."""
-  c, s = jnp.cos(pose_a[2]), jnp.sin(pose_a[2])
-  dx, dy = pose_b[0] - pose_a[0], pose_b[1] - pose_a[1]
-  return jnp.stack([c * dx + s * dy, -s * dx + c * dy, motion.wrap_angle(pose_b[2] - pose_a[2])])
+between = motion.between  # a⁻¹ ∘ b: pose b in a's frame (GTSAM's Pose2::between)
 
 
 def retract(pose, delta):
@@ -237,18 +233,6 @@ def _matvec(system: _System, src, dst, damping, v):
 # --- block tridiagonal matrices ------------------------------------------------------------------
 
 
-def _inv3(m):
-  """Inverse of a 3x3 matrix by its adjugate (no LAPACK)."""
-  adj = jnp.stack([
-      jnp.stack([m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1], m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2],
-                 m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]]),
-      jnp.stack([m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2], m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0],
-                 m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]]),
-      jnp.stack([m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0], m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1],
-                 m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]])])
-  return adj / linalg.det3(m)
-
-
 def _chol3(m):
   """Lower Cholesky factor of a 3x3 positive-definite matrix, written out (no LAPACK)."""
   l00 = jnp.sqrt(m[0, 0])
@@ -278,7 +262,7 @@ def tridiagonal_factor(diag, upper) -> Tridiagonal:
     d, c = blocks
     low = c.T @ s_inv_prev
     s = d - low @ c
-    s_inv = _inv3(0.5 * (s + s.T))
+    s_inv = linalg.inv3(0.5 * (s + s.T))
     return s_inv, (low, 0.5 * (s_inv + s_inv.T))
 
   upper = upper.at[0].set(0.0)
