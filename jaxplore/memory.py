@@ -52,6 +52,12 @@ LOCKSTEP_BYTES_PER_CELL = 32
 LOCKSTEP_PLANNING_BYTES_PER_CELL = 128
 
 
+def _tree_bytes(shapes) -> int:
+  """Bytes of a pytree of arrays or shapes (``jax.eval_shape``'s)."""
+  import jax
+  return sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+
+
 @functools.lru_cache(maxsize=64)
 def planner_memory_bytes(config: SimConfig) -> int:
   """Bytes of one robot's planner memory (``PlannerSpec.init_memory``), from its shapes alone
@@ -65,7 +71,7 @@ def planner_memory_bytes(config: SimConfig) -> int:
     return 0
   params = make_params(res=config.res, planner=dict(spec.defaults))
   shapes = jax.eval_shape(lambda p: spec.initial_memory(planner_context(config), p), params)
-  return sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+  return _tree_bytes(shapes)
 
 
 @functools.lru_cache(maxsize=64)
@@ -80,7 +86,7 @@ def graph_bytes(config: SimConfig) -> int:
   beams = config.n_beams if config.slam == "scan_matching" else 0
   shapes = jax.eval_shape(lambda: posegraph.init(jnp.zeros(3), config.graph_nodes,
                                                  config.graph_loops, beams=beams))
-  return sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+  return _tree_bytes(shapes)
 
 
 # A planner's memory (and a pose graph) is held three times: in the state, in the next state of the compiled loop,

@@ -196,20 +196,20 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       return seen, est_uv, end_rows, end_cols, est_dirs
 
     if slam:
+      offsets = slam_model.beam_offsets(params, config.n_beams)
       # The robot's graph without its stored scans: those (most of the graph's bytes) stay in
       # the batch's array, written a row per keyframe and read only to close a loop.
       own_graph = jax.tree.map(lambda g: g[robot], graph.replace(ranges=None))
       own_grid = jax.lax.dynamic_index_in_dim(logodds, robot, 0, keepdims=False)
       pose_est, cov, own_graph, frame = _slam_front(config, world, params, own_graph, own_grid,
-                                                    scan, pose, pose_est, cov, active, odometry,
-                                                    first)
+                                                    scan, offsets, pose, pose_est, cov, active,
+                                                    odometry, first)
       slot = jnp.where(frame.new | first, own_graph.n_nodes - 1, own_graph.poses.shape[0])
       ranges = graph.ranges.at[robot, slot].set(frame.stored, mode="drop")
       # As slam_toolbox builds its grid: only keyframes' scans, each re-traced from the
       # keyframe's estimated pose (what a rebuild after a loop closure re-integrates).
-      observed = slam_model.keyframe_observation(
-          pose_est, frame.stored, slam_model.beam_offsets(params, config.n_beams), world.origin,
-          res, shape, n_cross, active=frame.new | first)
+      observed = slam_model.keyframe_observation(pose_est, frame.stored, offsets, world.origin,
+                                                 res, shape, n_cross, active=frame.new | first)
       old_end = jnp.float32(0.0)
     else:
       seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
@@ -246,7 +246,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
         after=jnp.sum(old_end), whole_grid=whole_grid)
     if slam:
       logodds, own_graph, pose_est, rebuilt = _slam_back(config, world, params, own_graph, ranges,
-                                                         logodds, robot, pose, pose_est, frame)
+                                                         logodds, robot, offsets, pose, pose_est,
+                                                         frame)
       d_entropy = jnp.where(rebuilt.done, rebuilt.entropy - totals[0], d_entropy)
       d_covered = jnp.where(rebuilt.done, rebuilt.covered - totals[1], d_covered)
       graph = jax.tree.map(lambda g, new: g.at[robot].set(new), graph.replace(ranges=None),
@@ -262,8 +263,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   # per-robot loop (see sensor.measure).
   angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
   est_angles = angles - state.pose[2] + state.pose_est[2] if config.pose_noise else angles
-  if odometry is None:
-    odometry = (jnp.zeros_like(state.pose), jnp.zeros_like(state.cov))
+  if odometry is None:  # no motion (the reset's first scan)
+    odometry = (jnp.zeros_like(state.pose), jnp.zeros_like(state.cov), state.pose_est)
   inputs = (params, state.pose, state.pose_est, state.cov, key, active, angles,
             sensor.directions(angles), sensor.directions(est_angles), odometry,
             (state.entropy, state.covered))
@@ -291,14 +292,13 @@ class _Rebuilt(NamedTuple):
   covered: Any  # its reachable cells believed free
 
 
-def _slam_front(config, world, params, graph, belief, scan, pose, pose_est, cov, active,
+def _slam_front(config, world, params, graph, belief, scan, offsets, pose, pose_est, cov, active,
                 odometry, first):
   """The ``scan_matching`` model's front end (:mod:`jaxplore.slam.model`): a keyframe when the
   odometry since the last one has moved or turned far enough, its scan matched against the
   belief; the estimate and Σ updated from an accepted match; the keyframe and its odometry edge
   added to the graph."""
-  increment, odometry_cov = odometry
-  offsets = slam_model.beam_offsets(params, config.n_beams)
+  increment, odometry_cov, before = odometry
   stride = slam_model.sizes(config).stride
   stored = slam_model.stored_scan(scan)
   points, valid = slam_model.scan_points(stored, offsets, config.res, stride)
@@ -306,9 +306,6 @@ def _slam_front(config, world, params, graph, belief, scan, pose, pose_est, cov,
   # The uncertainty of the dead-reckoned estimate since the last keyframe (the front end's
   # window) and since the last closure (the loop search's), propagated by Li Eq 17: a heading
   # error grows the position error along the way.
-  c, s = jnp.cos(pose_est[2] - increment[2]), jnp.sin(pose_est[2] - increment[2])
-  before = pose_est - jnp.stack([c * increment[0] - s * increment[1],
-                                 s * increment[0] + c * increment[1], increment[2]])
   grow = lambda cov: jnp.where(active, motion.propagate_covariance(cov, before, pose_est,
                                                                    odometry_cov), cov)
   acc_cov = grow(graph.acc_cov)
@@ -347,12 +344,11 @@ def _slam_front(config, world, params, graph, belief, scan, pose, pose_est, cov,
   return pose_est, cov, graph, _Keyframe(new, stored, points, valid)
 
 
-def _slam_back(config, world, params, graph, ranges, logodds, robot, pose, pose_est,
+def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, pose, pose_est,
                frame: _Keyframe):
   """The ``scan_matching`` model's loop closure and back end: a new keyframe looks for a
   closure; an accepted one is added, the graph optimised, the estimate moved to the keyframe's
   optimised pose and the belief rebuilt from the keyframes' scans."""
-  offsets = slam_model.beam_offsets(params, config.n_beams)
   i = graph.n_nodes - 1
   candidates, ok = slam_model.loop_candidates(config, params, graph, i, pose_est)
   tries = frame.new & ok[0] & slam_model.loop_armed(graph, pose_est, params)
@@ -592,6 +588,7 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                            params.odom_noise_d * jnp.abs(delta_d),
                            params.odom_noise_phi * jnp.abs(delta_phi)])
     odo = odo + error_std * jax.random.normal(k_noise, (3,))
+  estimate_before = state.pose_est
   pose_est = motion.compound(state.pose_est, odo)
   cov = motion.propagate_covariance(state.cov, state.pose_est, pose_est, v_n)
   if not config.pose_noise:
@@ -607,11 +604,9 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                         collisions=state.collisions + collided.astype(jnp.int32))
   odometry_cov = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
                                             params.odom_noise_phi)
-  if config.slam == "scan_matching":
-    # The SLAM model keeps the graph (keyframes at the matched poses, loop closures by matching).
-    state = _sense(config, world, params, state, k_sense, busy, odometry=(odo, odometry_cov))
-  else:
-    state = _sense(config, world, params, state, k_sense, busy)
+  # The measured increment, its covariance and the estimate it moved (the SLAM model's input).
+  state = _sense(config, world, params, state, k_sense, busy,
+                 odometry=(odo, odometry_cov, estimate_before))
   if config.graph_nodes and config.slam == "oracle":
     # Keyframes at the estimate after relocalisation; odometry edges with the covariance of the
     # simulated odometry error (Eq 16's form, not Li's planning scale); line of sight in the updated

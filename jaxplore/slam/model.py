@@ -46,6 +46,7 @@ import jax.numpy as jnp
 from jaxplore import linalg, mapping, motion, sensor
 from jaxplore.posegraph import PoseGraph
 from jaxplore.slam import optimiser, scan_matching
+from jaxplore.world import cell_of, to_cells
 
 
 def d_optimality_of_information(info):
@@ -102,17 +103,12 @@ def scan_points(ranges, offsets, res: float, stride: int):
   return jnp.stack([r * jnp.cos(offsets), r * jnp.sin(offsets)], axis=-1), hit
 
 
-def _crop_start(centre_cell, side: int, size: int):
-  return jnp.clip(centre_cell - side // 2, 0, size - side)
-
-
 def crop(grid, origin, res: float, centre_xy, side: tuple[int, int]):
   """The ``side`` (rows, cols) window of ``grid`` nearest to being centred on ``centre_xy``
   (inside the grid) and the metres of its lower-left corner."""
-  h, w = grid.shape
-  cell = jnp.floor((centre_xy[::-1] - origin[::-1]) / res).astype(jnp.int32)  # (row, col)
-  r0 = _crop_start(cell[0], side[0], h)
-  c0 = _crop_start(cell[1], side[1], w)
+  cell = cell_of(centre_xy, origin, res)
+  r0 = mapping.window_start(cell[0], side[0], grid.shape[0])
+  c0 = mapping.window_start(cell[1], side[1], grid.shape[1])
   window = jax.lax.dynamic_slice(grid, (r0, c0), side)
   return window, origin + res * jnp.stack([c0, r0]).astype(jnp.float32)
 
@@ -237,8 +233,7 @@ def local_map(graph: PoseGraph, ranges, candidates, ok, offsets, res: float, cen
   as :func:`stored_scan` gives them) at their estimated
   poses (those facing ``centre_xy``, :func:`facing`), drawn into a window of the grid's lattice
   around ``centre_xy``; and its corner (m)."""
-  rows = jnp.floor((centre_xy[1] - origin[1]) / res).astype(jnp.int32) - side[0] // 2
-  cols = jnp.floor((centre_xy[0] - origin[0]) / res).astype(jnp.int32) - side[1] // 2
+  rows, cols = cell_of(centre_xy, origin, res) - jnp.array([side[0] // 2, side[1] // 2])
   corner = origin + res * jnp.stack([cols, rows]).astype(jnp.float32)
 
   def ends(k):
@@ -385,8 +380,7 @@ def keyframe_observation(pose, scan, offsets, origin, res: float, shape, n_cross
   r = jnp.abs(ranges)
   angles = pose[2] + offsets
   dirs = sensor.directions(angles)
-  u0 = (pose[0] - origin[0]) / res
-  v0 = (pose[1] - origin[1]) / res
+  v0, u0 = to_cells(pose[:2], origin, res)
   end_u = u0 + (r + END_PUSH_CELLS) * dirs[0]
   end_v = v0 + (r + END_PUSH_CELLS) * dirs[1]
   end_rows, end_cols = jnp.floor(end_v).astype(jnp.int32), jnp.floor(end_u).astype(jnp.int32)

@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 import scipy.ndimage
 from conftest import EAGER_AND_JIT
+from evo import main_ape as evo_main_ape
+from evo import main_rpe as evo_main_rpe
+from evo.core import geometry as evo_geometry
+from evo.core import metrics as evo_metrics
+from evo.core import sync as evo_sync
 
 from jaxplore.slam import accuracy
-
-evo_main_ape = pytest.importorskip("evo.main_ape")
-evo_main_rpe = pytest.importorskip("evo.main_rpe")
-from evo.core import geometry as evo_geometry  # noqa: E402
-from evo.core import metrics as evo_metrics  # noqa: E402
-from evo.core import sync as evo_sync  # noqa: E402
 from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
 
 logging.getLogger("evo").setLevel(logging.ERROR)

@@ -2,14 +2,14 @@
 LevenbergMarquardtOptimizer) on a square loop, a Manhattan grid world and GTSAM's own w100.graph;
 padding, vmap, eager/jit, and the dense pieces against NumPy.
 
-GTSAM is a test oracle only (not a dependency of the project): the tests that need it skip
-without it. Node 0 is held in GTSAM by a prior of σ = 1e-6; the costs compared are of the
+GTSAM is a test oracle (the dev extras install it), not a dependency of the package. Node 0 is held in GTSAM by a prior of σ = 1e-6; the costs compared are of the
 between factors alone.
 """
 
 import math
 import re
 
+import gtsam
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,13 +17,6 @@ import pytest
 
 from jaxplore.slam import optimiser as opt
 from tests.conftest import EAGER_AND_JIT
-
-try:
-  import gtsam
-except ImportError:  # an oracle only
-  gtsam = None
-
-needs_gtsam = pytest.mark.skipif(gtsam is None, reason="GTSAM (the oracle) is not installed")
 
 # One capacity for the three reference graphs, so that one compiled program serves them:
 # K = E − (N − 1) = 209 loop slots, more than w100.graph's 201 loops.
@@ -249,7 +242,6 @@ def _angles():
                    -3.0, 3.1])
 
 
-@needs_gtsam
 @EAGER_AND_JIT
 def test_logmap_and_expmap_match_gtsam_at_every_angle(transform):
   theta = _angles()
@@ -263,21 +255,6 @@ def test_logmap_and_expmap_match_gtsam_at_every_angle(transform):
   want = np.array([[q.x(), q.y(), q.theta()] for q in pose])
   np.testing.assert_allclose(exp, want, rtol=2e-6, atol=1e-6)
   np.testing.assert_allclose(jax.vmap(opt.logmap)(jnp.asarray(exp)), poses, rtol=2e-6, atol=2e-6)
-
-
-@needs_gtsam
-def test_jaxlie_log_has_gtsams_definition():
-  """jaxlie's SE2.log is GTSAM's Logmap (V⁻¹ on the translation) where its float32 arithmetic
-  holds (|θ| ≥ 0.1; below, its (cos θ − 1) cancels: the module uses its own)."""
-  jaxlie = pytest.importorskip("jaxlie")
-  rng = np.random.default_rng(1)
-  poses = np.concatenate([rng.uniform(-3, 3, (20, 2)), rng.uniform(0.1, 3.1, (20, 1))
-                          * rng.choice([-1, 1], (20, 1))], axis=1)
-  got = np.array([jaxlie.SE2.from_xy_theta(*jnp.asarray(p, jnp.float32)).log() for p in poses])
-  want = np.array([gtsam.Pose2.Logmap(_pose2(p)) for p in poses])
-  np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
-  np.testing.assert_allclose(jax.vmap(opt.logmap)(jnp.asarray(poses, jnp.float32)), want,
-                             rtol=1e-5, atol=1e-5)
 
 
 def _random_edges(rng, n, e):
@@ -294,7 +271,6 @@ def _random_edges(rng, n, e):
   return Graph(poses, src, dst, meas, np.asarray(info, np.float64))
 
 
-@needs_gtsam
 @EAGER_AND_JIT
 def test_between_error_and_cost_match_gtsam(transform):
   graph = _random_edges(np.random.default_rng(2), 30, 60)
@@ -319,7 +295,6 @@ def test_between_error_and_cost_match_gtsam(transform):
 # --- optimisation against GTSAM ------------------------------------------------------------------
 
 
-@needs_gtsam
 @EAGER_AND_JIT
 def test_square_loop_matches_gtsam(transform):
   graph = square_graph()  # 60 keyframes, 20 loop closures, at capacity
@@ -328,14 +303,12 @@ def test_square_loop_matches_gtsam(transform):
   assert float(result.final_cost) < 0.05 * float(result.initial_cost)
 
 
-@needs_gtsam
 def test_manhattan_grid_world_matches_gtsam():
   graph = grid_graph()
   assert graph.n == 120 and len(graph.src) - graph.n > 40  # plenty of loops
   assert_matches_gtsam(_optimise(*arrays(graph, N_CAP, E_CAP)), graph)
 
 
-@needs_gtsam
 def test_gtsam_w100_dataset_matches_gtsam():
   """w100.graph ships with the GTSAM wheel (``findExampleDataFile``); so do w10000.graph,
   noisyToyGraph.txt and others, but not Intel or M3500."""
@@ -353,13 +326,11 @@ def _broken_square():
                graph.information[keep])
 
 
-@needs_gtsam
 def test_broken_chain_reaches_gtsams_optimum():
   graph = _broken_square()
   assert_matches_gtsam(_optimise(*arrays(graph, N_CAP, E_CAP)), graph)
 
 
-@needs_gtsam
 def test_loops_past_the_preconditioners_capacity_reach_gtsams_optimum():
   """Room for 8 of the 20 loops: the other 12 are left to the conjugate gradients (given more
   iterations than by default)."""
@@ -487,7 +458,6 @@ def exploration_graph(seed=0, n=500, loops=100):
   return _simulate(truth, pairs, rng, np.array([0.05, 0.05, 0.02]), np.array([0.03, 0.03, 0.01]))
 
 
-@needs_gtsam
 @pytest.mark.slow  # ~8 s: a compile at N = 512, E = 640 and GTSAM on 600 factors
 def test_chain_of_500_with_100_loops_matches_gtsam():
   graph = exploration_graph()
