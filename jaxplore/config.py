@@ -27,6 +27,10 @@ from jaxplore.errors import ConfigError, shown
 
 # The SLAM models (SimConfig.slam; jaxplore.slam.model).
 SLAM_MODELS = ("oracle", "scan_matching")
+# Each SLAM model's default SimConfig.map_hole_cells: a SLAM map has holes of a few cells where
+# walls drawn from keyframes a fraction of a cell apart leave evidence both ways (4 cells: 0.16
+# m² at 0.2 m, below explore_lite's min_frontier_size of 0.75 m of frontier).
+MAP_HOLE_CELLS = {"oracle": 0, "scan_matching": 4}
 
 # How a batch of robots is executed (SimConfig.strategy).
 STRATEGIES = ("auto", "per_robot", "lockstep")
@@ -115,6 +119,10 @@ class SimConfig:
     loop_steps: coarse candidates on each side in x and y, loop closures.
     loop_candidates: older keyframes whose scans make a loop closure's local map.
     slam_iterations: most Gauss-Newton / Levenberg-Marquardt iterations of an optimisation.
+    map_hole_cells: unknown specks of at most this many cells enclosed by known ones are holes
+      in the map, not unexplored space: no frontier borders them (:func:`jaxplore.planning.
+      unexplored`). -1 (default): :data:`MAP_HOLE_CELLS` of the SLAM model (0, off, with the
+      oracle, whose maps have none).
     strategy: how the batch is executed (:data:`STRATEGIES`): ``"per_robot"`` walks the robots
       one (or ``plan_chunk``) at a time through the irregular stages, ``"lockstep"`` runs each
       stage as one kernel over the whole batch; ``"auto"`` (the default) is resolved on
@@ -154,6 +162,7 @@ class SimConfig:
   loop_steps: int = 10
   loop_candidates: int = 10
   slam_iterations: int = 10
+  map_hole_cells: int = -1
   strategy: str = "auto"
 
   def __post_init__(self):
@@ -191,6 +200,11 @@ class SimConfig:
       value = getattr(self, name)
       if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise ConfigError(f"{name} must be a positive number of metres, got {value!r}")
+    if not isinstance(self.map_hole_cells, (int, np.integer)) or self.map_hole_cells < -1:
+      raise ConfigError(f"map_hole_cells must be a non-negative integer (or -1: the SLAM "
+                        f"model's default), got {self.map_hole_cells!r}")
+    if self.map_hole_cells == -1:
+      object.__setattr__(self, "map_hole_cells", MAP_HOLE_CELLS[self.slam])
     if self.slam == "scan_matching":
       object.__setattr__(self, "pose_noise", True)
       if not self.graph_nodes:

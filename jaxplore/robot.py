@@ -492,28 +492,56 @@ def believed_wall_distance_sq(config: SimConfig, world: World, params: Params, s
   return jnp.min(jnp.where(logodds > mapping.logit(params.p_occ), squared, jnp.inf))
 
 
-def _in_belief_frame(config: SimConfig, world: World, state: State, cells):
-  """Truth cells where the robot's estimated pose puts them (shifted by its cell error)."""
-  shift = (cell_of(state.pose_est[:2], world.origin, config.res) -
-           cell_of(state.pose[:2], world.origin, config.res))
-  return cells + shift[None, :]
+def _rotate(xy, angle):
+  c, s = jnp.cos(angle), jnp.sin(angle)
+  return jnp.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1]], axis=-1)
+
+
+def _in_belief_frame(config: SimConfig, world: World, true_pose, estimate, points):
+  """The belief's cells of points (f32[K, 2], metres, the truth's frame): each point as the
+  robot sees it from its ``true_pose``, placed at its ``estimate``."""
+  seen = _rotate(points - true_pose[None, :2], estimate[2] - true_pose[2]) + estimate[None, :2]
+  return jax.vmap(cell_of, in_axes=(0, None, None))(seen, world.origin, config.res)
+
+
+def _centres(config: SimConfig, world: World, cells):
+  return jax.vmap(cell_centre, in_axes=(0, None, None))(cells, world.origin, config.res)
+
+
+def _bumps(config: SimConfig, world: World, params: Params, xy, new_xy):
+  """The cells around ``new_xy`` and which of them stop a move of the robot's disc from ``xy``
+  to ``new_xy``: the true walls (:func:`touched_cells`) the disc would touch there, when the
+  move brings it nearer to the nearest true wall. Sliding along a wall or backing off one it
+  already touches goes on, as a bumper allows: a robot whose estimate put it against a wall
+  can leave it. Returns (i32[K, 2], bool[K])."""
+  cells, touching = touched_cells(config, world, params, new_xy)
+  walls = world.occupied.at[cells[:, 0], cells[:, 1]].get(mode="fill", fill_value=True,
+                                                          wrap_negative_indices=False)
+  _, squared_new = _cells_around(config, world, new_xy)
+  squared_old = jnp.sum((cells + 0.5 - to_cells(xy, world.origin, config.res)[None, :]) ** 2, axis=1)
+  nearer = (jnp.min(jnp.where(walls, squared_new, jnp.inf))
+            < jnp.min(jnp.where(walls, squared_old, jnp.inf)) - 1e-4)
+  return cells, touching & nearer
+
+
+def _believed_wall(config: SimConfig, params: Params, logodds, cells):
+  """Whether the belief holds each of its ``cells`` as occupied (outside the map: yes)."""
+  held = logodds.at[cells[:, 0], cells[:, 1]].get(mode="fill", fill_value=jnp.inf,
+                                                  wrap_negative_indices=False)
+  return held > mapping.logit(params.p_occ)
 
 
 def _believed_occupied(config: SimConfig, world: World, params: Params, state: State, cells):
   """Whether the robot's belief holds each truth cell as occupied (outside the map: yes)."""
-  cells = _in_belief_frame(config, world, state, cells)
-  logodds = state.logodds.at[cells[:, 0], cells[:, 1]].get(
-      mode="fill", fill_value=jnp.inf, wrap_negative_indices=False)
-  return logodds > mapping.logit(params.p_occ)
+  return _believed_wall(config, params, state.logodds, _in_belief_frame(
+      config, world, state.pose, state.pose_est, _centres(config, world, cells)))
 
 
 def _feel_collision(config: SimConfig, world: World, params: Params, state: State, cells, felt):
-  """The cells the robot bumped into (``felt``) become occupied in its belief, placed where its
-  estimated pose puts them. A contact is certain, unlike a scan: their log-odds go to ``l_max``
-  whatever the belief held (one ``l_occ`` would leave a cell believed free still free). Map
-  entropy and coverage follow."""
+  """The belief's ``cells`` the robot bumped into (``felt``) become occupied. A contact is
+  certain, unlike a scan: their log-odds go to ``l_max`` whatever the belief held (one ``l_occ``
+  would leave a cell believed free still free). Map entropy and coverage follow."""
   h, w = config.height, config.width
-  cells = _in_belief_frame(config, world, state, cells)
   inside = (cells[:, 0] >= 0) & (cells[:, 0] < h) & (cells[:, 1] >= 0) & (cells[:, 1] < w)
   felt = felt & inside
   rows = jnp.where(felt, cells[:, 0], h)  # row h is dropped by the scatter
@@ -532,20 +560,52 @@ def _feel_collision(config: SimConfig, world: World, params: Params, state: Stat
                        covered=state.covered + d_covered)
 
 
+LOOKAHEAD_CELLS = 2.0
+
+
+def _lookahead(config: SimConfig, world: World, state: State):
+  """The index of the waypoint a robot steering by its estimate heads for: the farthest of its
+  next few waypoints within :data:`LOOKAHEAD_CELLS` of the estimate along a straight run of
+  the path (pure pursuit that never cuts a corner the planner's clearance was measured around),
+  or the next one; the waypoints before it count as passed. A correction of the estimate by a
+  fraction of a cell (a keyframe's scan match) then bends the heading a little instead of
+  putting a waypoint one cell ahead behind the robot, which would turn it around."""
+  ahead = int(LOOKAHEAD_CELLS) + 2
+  k = jnp.arange(ahead)
+  idx = state.path_idx + k
+  # The run starts at the waypoint last passed (the robot's own cell after a plan).
+  previous = state.waypoints[jnp.clip(state.path_idx - 1, 0, config.path_capacity - 1)]
+  cells = state.waypoints[jnp.minimum(idx, config.path_capacity - 1)]
+  steps = cells - jnp.concatenate([previous[None], cells[:-1]])
+  straight = jnp.cumprod(jnp.all(steps == steps[:1], axis=1)).astype(bool)
+  straight = straight.at[0].set(True)
+  centres = _centres(config, world, cells)
+  near = jnp.linalg.norm(centres - state.pose_est[None, :2], axis=1) <= (
+      LOOKAHEAD_CELLS + 1e-3) * config.res
+  return state.path_idx + jnp.max(jnp.where(near & straight & (idx < state.path_len), k, 0))
+
+
 def step(config: SimConfig, world: World, params: Params, state: State) -> tuple[State, Record]:
   """One motion step of one robot (see the module docstring for the order of events)."""
   res = config.res
   key, k_noise, k_sense = jax.random.split(state.key, 3)
   running = ~state.done
-  has_waypoint = state.path_idx < state.path_len
-  idx = jnp.minimum(state.path_idx, config.path_capacity - 1)
+  slam = config.slam == "scan_matching"
+  path_idx = _lookahead(config, world, state) if slam else state.path_idx
+  has_waypoint = path_idx < state.path_len
+  idx = jnp.minimum(path_idx, config.path_capacity - 1)
   target = jnp.where(has_waypoint, state.waypoints[idx], state.look_at)
   # A waypoint the truth says is occupied ends the path, and the robot feels it like a bump: a
   # scan integrated at a slightly wrong pose can leave a wall cell believed free, and a planner
   # would send the robot to that "frontier" again and again (seen with pose noise on `campus`).
-  blocked = has_waypoint & world.occupied[target[0], target[1]]
-  state = _feel_collision(config, world, params, state, target[None], (running & blocked)[None])
-  path_len = jnp.where(blocked, state.path_idx, state.path_len)
+  # (With SLAM the waypoint is a cell of the belief, whose frame is not the truth's: the
+  # collision check below decides.)
+  blocked = has_waypoint & world.occupied[target[0], target[1]] & (not slam)
+  state = _feel_collision(config, world, params, state,
+                          _in_belief_frame(config, world, state.pose, state.pose_est,
+                                           _centres(config, world, target[None])),
+                          (running & blocked)[None])
+  path_len = jnp.where(blocked, path_idx, state.path_len)
   has_waypoint = has_waypoint & ~blocked
   # A path planned before the walls beside it were mapped would take the disc onto walls the
   # belief now holds (no collision: known walls are the planner's to avoid), into cells its
@@ -560,24 +620,43 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   here = cell_centre(cell_of(state.pose_est[:2], world.origin, res), world.origin, res)
   wall_here = believed_wall_distance_sq(config, world, params, state, here)
   closes_in = has_waypoint & _within_radius(config, params, wall_ahead) & (wall_ahead < wall_here)
-  path_len = jnp.where(closes_in, state.path_idx, path_len)
+  path_len = jnp.where(closes_in, path_idx, path_len)
   has_waypoint = has_waypoint & ~closes_in
   target = jnp.where(has_waypoint, target, state.look_at)
   target_xy = cell_centre(target, world.origin, res)
-  look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
-  drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
-                              translate=has_waypoint)
-  touched, touching = touched_cells(config, world, params, target_xy)
-  touching = touching & ~_believed_occupied(config, world, params, state, touched)
+  if slam:
+    # The robot steers by its estimate, as a real one does: the turn and drive that take the
+    # estimate toward the target move the true pose. The belief around it was drawn from the
+    # same estimate, so it passes the walls it believes in; a true wall its disc would touch is
+    # a collision whatever the belief holds (the belief's walls may lie elsewhere).
+    look_needed = jnp.any(target != cell_of(state.pose_est[:2], world.origin, res))
+    command = motion.drive_toward(state.pose_est, target_xy, params.v_max, params.w_max,
+                                  params.dt, translate=has_waypoint)
+    heading = motion.wrap_angle(state.pose[2] + command.delta_phi)
+    true_xy = state.pose[:2] + command.delta_d * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
+    drive = command._replace(pose=jnp.concatenate([true_xy, heading[None]]))
+    # Where the true robot ends when its estimate reaches the target: there, as the oracle's
+    # robot at its waypoint, its disc must be clear of the truth's walls (the planner measured
+    # clearance at cell centres, not along the segments between them).
+    end_true = jnp.concatenate([state.pose[:2] + _rotate(target_xy - state.pose_est[:2],
+                                                         state.pose[2] - state.pose_est[2]),
+                                state.pose[2:]])
+    touched, touching = _bumps(config, world, params, state.pose[:2], end_true[:2])
+  else:
+    look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))
+    drive = motion.drive_toward(state.pose, target_xy, params.v_max, params.w_max, params.dt,
+                                translate=has_waypoint)
+    touched, touching = touched_cells(config, world, params, target_xy)
+    touching = touching & ~_believed_occupied(config, world, params, state, touched)
   collided = running & has_waypoint & (drive.delta_d > 0) & jnp.any(touching)
-  path_len = jnp.where(collided, state.path_idx, path_len)
+  path_len = jnp.where(collided, path_idx, path_len)
   has_waypoint = has_waypoint & ~collided
   busy = running & ~collided & (
       has_waypoint | (look_needed & (jnp.abs(drive.delta_phi) > 1e-6)))
   delta_d = jnp.where(busy, drive.delta_d, 0.0)
   delta_phi = jnp.where(busy, drive.delta_phi, 0.0)
   pose = jnp.where(busy, drive.pose, state.pose)
-  path_idx = state.path_idx + (busy & has_waypoint & drive.arrived).astype(jnp.int32)
+  path_idx = path_idx + (busy & has_waypoint & drive.arrived).astype(jnp.int32)
 
   # Odometry: the estimate is dead-reckoned from the (possibly noisy) increment; Σ by Eq 17
   # with Li's planning model V_n, the simulated error from the odometry noise parameters.
@@ -594,7 +673,29 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   if not config.pose_noise:
     pose_est = pose
 
-  state = _feel_collision(config, world, params, state, touched, touching & collided)
+  if slam:
+    # What a bumper tells: something at the disc's edge, toward each wall touched, placed in the
+    # robot's own frame. Where the belief already holds that wall a little farther off (the
+    # estimate is off by a fraction of a cell), this thickens it toward the robot, so the next
+    # plan keeps the clearance the truth needs instead of bumping on the same line again.
+    toward = _centres(config, world, touched) - end_true[None, :2]
+    toward = toward / jnp.maximum(jnp.linalg.norm(toward, axis=1, keepdims=True), 1e-6)
+    felt_cells = _in_belief_frame(config, world, end_true,
+                                  jnp.concatenate([target_xy, state.pose_est[2:]]),
+                                  end_true[None, :2] + params.r_robot * toward)
+    felt = touching & collided
+    # Where the belief holds all of that already, the robot is nearer to the wall than it
+    # believes, and a plan from the same belief would take the same step into it again: the
+    # bump then blocks the waypoint it was driving to, which the next plan avoids.
+    known = jnp.all(~felt | _believed_wall(config, params, state.logodds, felt_cells))
+    own = cell_of(state.pose_est[:2], world.origin, res)
+    felt_cells = jnp.concatenate([felt_cells, target[None]])
+    felt = jnp.concatenate([felt, (collided & known & jnp.any(target != own))[None]])
+  else:
+    felt_cells = _in_belief_frame(config, world, state.pose, state.pose_est,
+                                  _centres(config, world, touched))
+    felt = touching & collided
+  state = _feel_collision(config, world, params, state, felt_cells, felt)
   state = state.replace(key=key, pose=pose, pose_est=pose_est, cov=cov, path_len=path_len,
                         path_idx=path_idx, steps=state.steps + running.astype(jnp.int32),
                         idle_steps=state.idle_steps + (running & ~busy).astype(jnp.int32),

@@ -39,7 +39,7 @@ from jaxplore.config import PARAM_FIELDS, PRESETS, SLAM_MODELS, STRATEGIES, Conf
 # compiled program of its own.
 STATIC_PARAMS = ("r_e", "dpi_min", "slam_match_beams", "slam_smear", "slam_search_m", "slam_steps",
                  "slam_fine_steps", "loop_search_m", "loop_smear", "loop_steps", "loop_candidates",
-                 "slam_iterations")
+                 "slam_iterations", "map_hole_cells")
 SIM_PARAMS = PARAM_FIELDS + tuple(n for n in STATIC_PARAMS if n not in PARAM_FIELDS)
 SEED_LIMIT = 2**32  # a PRNG seed is a uint32: larger seeds would alias smaller ones
 AXES = ("world", "planner", "robots", "seed", "robot_seeds")  # what a sweep varies row by row

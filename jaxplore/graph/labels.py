@@ -110,6 +110,21 @@ def component_roots(mask: jax.Array, max_rounds: int | None = None) -> jax.Array
   return jnp.where(mask, parent[:n].reshape(height, width), -1)
 
 
+def enclosed_specks(mask: jax.Array, max_cells: int, max_rounds: int | None = None) -> jax.Array:
+  """bool[H, W]: the cells of ``mask``'s 8-connected components of at most ``max_cells`` cells
+  that do not touch the grid's edge (what lies beyond the edge may join them to more)."""
+  height, width = mask.shape
+  n = height * width
+  roots = component_roots(mask, max_rounds).ravel()
+  in_mask = mask.ravel()
+  segment = jnp.where(in_mask, roots, n)
+  size = jax.ops.segment_sum(in_mask.astype(jnp.int32), segment, num_segments=n + 1)
+  border = jnp.ones((height, width), bool).at[1:-1, 1:-1].set(False).ravel()
+  open_edge = jax.ops.segment_max((in_mask & border).astype(jnp.int32), segment, num_segments=n + 1)
+  speck = (size <= max_cells) & (open_edge <= 0)
+  return (in_mask & speck[segment]).reshape(height, width)
+
+
 def clusters(mask: jax.Array, max_clusters: int, max_rounds: int | None = None) -> Clusters:
   """The connected components of ``mask`` (8-connectivity), compacted to ``max_clusters`` slots.
 

@@ -126,3 +126,20 @@ def test_nearest_label_manhattan_matches_brute_force(variant):
 def test_nearest_label_without_sources():
   distance, nearest = labels.nearest_label_manhattan(jnp.full((4, 5), -1, jnp.int32), 3)
   assert np.all(np.asarray(nearest) == -1) and np.all(np.asarray(distance) > 1000)
+
+
+@VARIANTS
+@pytest.mark.parametrize("density", [0.15, 0.3])
+def test_enclosed_specks_are_the_small_components_off_the_edge_as_scipy_finds_them(variant,
+                                                                                   density):
+  mask = np.random.default_rng(int(density * 10)).random((20, 24)) < density
+  got = np.asarray(variant(lambda m: labels.enclosed_specks(m, 3))(jnp.asarray(mask)))
+  lab, count = ndimage.label(mask, structure=EIGHT)
+  expected = np.zeros_like(mask)
+  for k in range(1, count + 1):
+    cells = lab == k
+    on_edge = cells[0].any() or cells[-1].any() or cells[:, 0].any() or cells[:, -1].any()
+    if cells.sum() <= 3 and not on_edge:
+      expected |= cells
+  assert expected.any() and (mask & ~expected).any()  # both kinds occur
+  np.testing.assert_array_equal(got, expected)
