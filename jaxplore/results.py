@@ -87,7 +87,9 @@ def summary_table(episodes: pd.DataFrame) -> str:
   lines.append("termination: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
   for col, unit in (("time_s", "s"), ("distance_m", "m"), ("coverage", ""), ("coverage_m2", "m²"),
                     ("entropy_reduction", "nats"), ("E_r", "nats/m"), ("Std_E_r", "nats/m"),
-                    ("t90_s", "s"), ("t99_s", "s")):
+                    ("t90_s", "s"), ("t99_s", "s"),
+                    # with the scan_matching SLAM model only
+                    ("ate_m", "m"), ("loop_closures", ""), ("false_closures", "")):
     if col in episodes:
       v = episodes[col].astype(float)
       lines.append(f"  {col:<18} {v.mean():12.4g} ± {v.std():<10.4g} {unit}  "

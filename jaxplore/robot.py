@@ -12,6 +12,11 @@ Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SL
 (keyframes and loop closures, :mod:`jaxplore.posegraph`; only when the run keeps one) -> the
 planner's step hook (only when it has one) -> metrics -> termination.
 
+With the ``scan_matching`` SLAM model the robot steers by its estimate instead (pure pursuit
+along a straight run of its path, :func:`_lookahead`), the true pose moved by the same command,
+and a true wall its disc would come nearer to stops it (:func:`_bumps`), whatever its belief
+holds (docs/slam.md, "How a SLAM robot moves").
+
 Time spent waiting is not mission time (``time`` counts only steps in which the robot moved or
 turned; ``idle_steps`` counts the others: one per arrival, plus any wait of a robot with nothing
 to do).
@@ -524,7 +529,7 @@ def _bumps(config: SimConfig, world: World, params: Params, xy, new_xy):
   return cells, touching & nearer
 
 
-def _believed_wall(config: SimConfig, params: Params, logodds, cells):
+def _believed_wall(params: Params, logodds, cells):
   """Whether the belief holds each of its ``cells`` as occupied (outside the map: yes)."""
   held = logodds.at[cells[:, 0], cells[:, 1]].get(mode="fill", fill_value=jnp.inf,
                                                   wrap_negative_indices=False)
@@ -533,7 +538,7 @@ def _believed_wall(config: SimConfig, params: Params, logodds, cells):
 
 def _believed_occupied(config: SimConfig, world: World, params: Params, state: State, cells):
   """Whether the robot's belief holds each truth cell as occupied (outside the map: yes)."""
-  return _believed_wall(config, params, state.logodds, _in_belief_frame(
+  return _believed_wall(params, state.logodds, _in_belief_frame(
       config, world, state.pose, state.pose_est, _centres(config, world, cells)))
 
 
@@ -687,7 +692,7 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
     # Where the belief holds all of that already, the robot is nearer to the wall than it
     # believes, and a plan from the same belief would take the same step into it again: the
     # bump then blocks the waypoint it was driving to, which the next plan avoids.
-    known = jnp.all(~felt | _believed_wall(config, params, state.logodds, felt_cells))
+    known = jnp.all(~felt | _believed_wall(params, state.logodds, felt_cells))
     own = cell_of(state.pose_est[:2], world.origin, res)
     felt_cells = jnp.concatenate([felt_cells, target[None]])
     felt = jnp.concatenate([felt, (collided & known & jnp.any(target != own))[None]])

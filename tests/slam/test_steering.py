@@ -24,6 +24,7 @@ CONFIG = SimConfig(height=20, width=30, res=RES, n_beams=16, max_range_cells=6, 
                    graph_loops=4, slam="scan_matching")
 WORLD = sim.make_world(GRID, RES)
 STEP = jax.jit(sim.step, static_argnums=0)
+RESET = jax.jit(sim.reset, static_argnums=0)
 
 
 def centre(cell):
@@ -34,7 +35,7 @@ def on_path(cells, estimate, truth=None):
   """A SLAM robot following ``cells`` (its first waypoint is its own cell) whose estimate is
   ``estimate`` and true pose ``truth`` (default: the estimate)."""
   truth = estimate if truth is None else truth
-  state = sim.reset(CONFIG, WORLD, PARAMS, jax.random.PRNGKey(0), jnp.asarray(truth, jnp.float32))
+  state = RESET(CONFIG, WORLD, PARAMS, jax.random.PRNGKey(0), jnp.asarray(truth, jnp.float32))
   path = np.asarray(cells, np.int32)
   waypoints = np.concatenate([path, np.repeat(path[-1:], CONFIG.path_capacity - len(path), 0)])
   return state.replace(pose_est=jnp.asarray(estimate, jnp.float32),
