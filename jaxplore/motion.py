@@ -21,6 +21,12 @@ def wrap_angle(a):
   return jnp.arctan2(jnp.sin(a), jnp.cos(a))
 
 
+def rotate(angle, xy):
+  """``R(angle) xy`` for ``xy: f32[..., 2]`` and an ``angle`` broadcasting with ``xy[..., 0]``."""
+  c, s = jnp.cos(angle), jnp.sin(angle)
+  return jnp.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1]], axis=-1)
+
+
 def compound(pose_ij, x_jk):
   """Pose compounding ``X_ik = X_ij ⊕ X_jk`` (Li Eq 9); ``x_jk`` is expressed in frame j."""
   x, y, phi = pose_ij[0], pose_ij[1], pose_ij[2]

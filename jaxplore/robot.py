@@ -497,15 +497,11 @@ def believed_wall_distance_sq(config: SimConfig, world: World, params: Params, s
   return jnp.min(jnp.where(logodds > mapping.logit(params.p_occ), squared, jnp.inf))
 
 
-def _rotate(xy, angle):
-  c, s = jnp.cos(angle), jnp.sin(angle)
-  return jnp.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1]], axis=-1)
-
-
 def _in_belief_frame(config: SimConfig, world: World, true_pose, estimate, points):
   """The belief's cells of points (f32[K, 2], metres, the truth's frame): each point as the
   robot sees it from its ``true_pose``, placed at its ``estimate``."""
-  seen = _rotate(points - true_pose[None, :2], estimate[2] - true_pose[2]) + estimate[None, :2]
+  turn = estimate[2] - true_pose[2]
+  seen = motion.rotate(turn, points - true_pose[None, :2]) + estimate[None, :2]
   return jax.vmap(cell_of, in_axes=(0, None, None))(seen, world.origin, config.res)
 
 
@@ -519,11 +515,12 @@ def _bumps(config: SimConfig, world: World, params: Params, xy, new_xy):
   move brings it nearer to the nearest true wall. Sliding along a wall or backing off one it
   already touches goes on, as a bumper allows: a robot whose estimate put it against a wall
   can leave it. Returns (i32[K, 2], bool[K])."""
-  cells, touching = touched_cells(config, world, params, new_xy)
+  cells, squared_new = _cells_around(config, world, new_xy)
   walls = world.occupied.at[cells[:, 0], cells[:, 1]].get(mode="fill", fill_value=True,
                                                           wrap_negative_indices=False)
-  _, squared_new = _cells_around(config, world, new_xy)
-  squared_old = jnp.sum((cells + 0.5 - to_cells(xy, world.origin, config.res)[None, :]) ** 2, axis=1)
+  touching = walls & _within_radius(config, params, squared_new)
+  at = to_cells(xy, world.origin, config.res)
+  squared_old = jnp.sum((cells + 0.5 - at[None, :]) ** 2, axis=1)
   nearer = (jnp.min(jnp.where(walls, squared_new, jnp.inf))
             < jnp.min(jnp.where(walls, squared_old, jnp.inf)) - 1e-4)
   return cells, touching & nearer
@@ -643,9 +640,8 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
     # Where the true robot ends when its estimate reaches the target: there, as the oracle's
     # robot at its waypoint, its disc must be clear of the truth's walls (the planner measured
     # clearance at cell centres, not along the segments between them).
-    end_true = jnp.concatenate([state.pose[:2] + _rotate(target_xy - state.pose_est[:2],
-                                                         state.pose[2] - state.pose_est[2]),
-                                state.pose[2:]])
+    offset = motion.rotate(state.pose[2] - state.pose_est[2], target_xy - state.pose_est[:2])
+    end_true = jnp.concatenate([state.pose[:2] + offset, state.pose[2:]])
     touched, touching = _bumps(config, world, params, state.pose[:2], end_true[:2])
   else:
     look_needed = jnp.any(target != cell_of(state.pose[:2], world.origin, res))

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplore import mapping
+from jaxplore import mapping, motion
 
 
 class Alignment(NamedTuple):
@@ -48,12 +48,6 @@ class Pairs(NamedTuple):
 def _masked(a, valid):
   """``a`` with the rows past the valid prefix zeroed (padding may hold NaN)."""
   return jnp.where(valid[:, None], a, jnp.zeros_like(a))
-
-
-def _rotate(angle, xy):
-  """``R(angle) xy`` for ``xy: f32[..., 2]`` and an ``angle`` broadcasting with ``xy[..., 0]``."""
-  c, s = jnp.cos(angle), jnp.sin(angle)
-  return jnp.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1]], axis=-1)
 
 
 def _rms(err, mask):
@@ -86,13 +80,13 @@ def rigid_alignment(source_xy, target_xy, valid) -> Alignment:
   cos_part = jnp.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
   sin_part = jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
   angle = jnp.arctan2(sin_part, cos_part)
-  return Alignment(angle, mean_d - _rotate(angle, mean_s))
+  return Alignment(angle, mean_d - motion.rotate(angle, mean_s))
 
 
 def apply_alignment(alignment: Alignment, xy):
   """``R xy + t`` for points ``f32[..., 2]``."""
   shift = jnp.reshape(alignment.translation, (1,) * (jnp.ndim(xy) - 1) + (2,))
-  return _rotate(alignment.angle, xy) + shift
+  return motion.rotate(alignment.angle, xy) + shift
 
 
 def ape_errors(estimated, truth, valid, align: bool = True):
@@ -207,8 +201,8 @@ def rpe_errors(estimated, truth, pairs: Pairs):
   ``(Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)``: ``|R(−θ̂_i)(p̂_j − p̂_i) − R(−θ_i)(p_j − p_i)|``; 0 on rows that
   are not pairs."""
   i, j = pairs.first, pairs.second  # valid pairs index valid poses only
-  rel_est = _rotate(-estimated[i, 2], estimated[j, :2] - estimated[i, :2])
-  rel_true = _rotate(-truth[i, 2], truth[j, :2] - truth[i, :2])
+  rel_est = motion.rotate(-estimated[i, 2], estimated[j, :2] - estimated[i, :2])
+  rel_true = motion.rotate(-truth[i, 2], truth[j, :2] - truth[i, :2])
   d = rel_est - rel_true
   return jnp.where(pairs.valid, jnp.sqrt(jnp.sum(d * d, axis=-1)), 0.0)
 
