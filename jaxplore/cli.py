@@ -79,6 +79,54 @@ def _parameter_flags(extra, planners):
   return params, planner_params
 
 
+def settings_listing(planners=(), names=(), markdown: bool = False) -> str:
+  """The text of ``jaxplore settings``: the simulator's settings, then each of ``planners``'
+  (``"all"``: every registered planner's), only ``names`` if given."""
+  from jaxplore.config import PARAM_SETTINGS, STATIC_SETTINGS, ConfigError
+  from jaxplore.planners import get_planner, planner_names
+  from jaxplore.settings import table
+  rows = [*PARAM_SETTINGS.values(), *STATIC_SETTINGS.values()]
+  chosen = planner_names() if "all" in planners else list(planners)
+  for planner in chosen:
+    rows += get_planner(planner).declared_settings()
+  if names:
+    unknown = sorted(set(names) - {s.name for s in rows})
+    if unknown:
+      raise ConfigError(f"no setting(s) {unknown}"
+                        + ("" if chosen else " of the simulator (a planner's: add --planner NAME)"))
+    rows = [s for s in rows if s.name in names]
+  if not markdown or names:
+    return table(rows, markdown=markdown)
+  return SETTINGS_PAGE_INTRO + "\n" + table(rows, markdown=True)
+
+
+SETTINGS_PAGE_INTRO = """# Settings
+
+Every setting a run or a sweep takes by name: `--set NAME=VALUE` or `--NAME VALUE` on the
+command line, a `[set]` table in a TOML file, `params={...}` in Python, a sweep's `--grid` or
+`--random`. Nobody needs to say whose a setting is (the simulator's or the planner's).
+
+A **traced** setting may differ robot by robot and is swept without recompiling; each value of a
+**static** one fixes the compiled program, so a sweep runs each value as a group of its own.
+Presets (`--preset`) change the lidar and the robot (`r_max`, `fov`, `v_max`, `w_max`, ...).
+This page is generated from the declarations in the code
+(`jaxplore settings --planner all --markdown > docs/settings.md`); `jaxplore settings` prints it
+as text.
+"""
+
+
+def _settings(args) -> int:
+  """``jaxplore settings``."""
+  from jaxplore.config import ConfigError
+  try:
+    text = settings_listing(args.planner or (), args.names, args.markdown)
+  except ConfigError as err:
+    print(f"jaxplore: error: {err}", file=sys.stderr)
+    return 2
+  print(text, end="")
+  return 0
+
+
 def _set_devices(n):
   n = n or os.cpu_count() or 1
   flags = os.environ.get("XLA_FLAGS", "")
@@ -263,10 +311,10 @@ def _add_spec_flags(p):
                  "the results are the same, the map-entropy metric to its last bits (default auto: "
                  "per_robot on CPU, lockstep on GPU/TPU)")
   p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                 help="a simulator parameter (or pass it as --NAME VALUE, e.g. --alpha 1.5 "
-                 "--k1 0.2)")
+                 help="any setting, the simulator's or the planner's ('jaxplore settings' lists "
+                 "them; or pass it as --NAME VALUE, e.g. --alpha 1.5 --k1 0.2)")
   p.add_argument("--planner-set", action="append", metavar="NAME=VALUE",
-                 help="a planner weight or setting")
+                 help="the same as --set (kept for older scripts)")
   p.add_argument("--devices", type=int, default=None,
                  help="host devices to shard over (default: cores)")
   p.add_argument("--no-progress", action="store_true")
@@ -289,8 +337,8 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
   parser = _Parser(prog="jaxplore", description="Batched exploration and active-SLAM simulator: "
-                   "run a batch of robots, sweep settings, list worlds, redraw figures, animate "
-                   "a run. 'jaxplore COMMAND --help' for each command.")
+                   "run a batch of robots, sweep settings, list worlds and settings, redraw "
+                   "figures, animate a run. 'jaxplore COMMAND --help' for each command.")
   sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
   run = sub.add_parser("run", help="run a batch of robots exploring a world",
@@ -342,6 +390,16 @@ def build_parser() -> argparse.ArgumentParser:
   sw.add_argument("--quiet", action="store_true", help="no per-setting table")
   _add_spec_flags(sw)
 
+  settings = sub.add_parser(
+      "settings", help="list every setting: default, range, unit, traced or static",
+      description="Every setting a run or a sweep takes by name (--set NAME=VALUE, --NAME VALUE, "
+      "a TOML [set] table, a sweep's --grid): traced ones may differ robot by robot and are "
+      "swept without recompiling; each value of a static one is a compiled program of its own.")
+  settings.add_argument("names", nargs="*", metavar="NAME", help="only these settings")
+  settings.add_argument("--planner", action="append", default=None, metavar="PLANNER",
+                        help="also this planner's weights and settings ('all': every planner's)")
+  settings.add_argument("--markdown", action="store_true", help="as Markdown tables")
+
   maps = sub.add_parser("maps", help="list the built-in worlds, or render one to PNG")
   maps.add_argument("--render", default=None, metavar="WORLD", help="world name or YAML path")
   maps.add_argument("--res", type=float, default=None)
@@ -375,6 +433,8 @@ def main(argv=None) -> int:
     from jaxplore import interrupts
     with interrupts.deferred():  # Ctrl-C acted on between JAX calls, start-up included
       return (_run if args.command == "run" else _sweep)(args, extra)
+  if args.command == "settings":
+    return _settings(args)
   if args.command == "maps":
     from jaxplore.maps import MapError, load_world, render_png, world_table
     if args.render:

@@ -20,8 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import memory, posegraph, sim
-from jaxplore.config import (ConfigError, Params, SimConfig, config_for, make_params,
-                             validate_params)
+from jaxplore.config import (STATIC_SETTINGS, ConfigError, Params, SimConfig, config_for,
+                             make_params, validate_params)
 from jaxplore.maps import GridMap, load_world
 from jaxplore.planners import get_planner
 from jaxplore.runspec import STATIC_PARAMS, RunSpec
@@ -180,12 +180,7 @@ def split_params(params) -> tuple[dict, dict]:
   traced, static = {}, {}
   for name, value in (params or {}).items():
     if name in STATIC_PARAMS:
-      static[name] = float(_one_value(name, value))
-      default = getattr(SimConfig, name, None)
-      if isinstance(default, int) and not isinstance(default, bool):
-        if not static[name].is_integer():
-          raise ConfigError(f"{name} must be an integer, got {value!r}")
-        static[name] = int(static[name])
+      static[name] = STATIC_SETTINGS[name].convert(_one_value(name, value), name)
     else:
       traced[name] = np.asarray(value, np.float32) if isinstance(value, tuple) else value
   return traced, static
@@ -218,9 +213,9 @@ def resolve(spec: RunSpec) -> Resolved:
   params = build_params(spec.planner, spec.preset, grid.res, dict(spec.params),
                         dict(spec.planner_params))
   settings = planner.resolve_settings(split_planner_params(spec.planner, spec.planner_params)[1])
-  slam = spec.slam or "oracle"
   overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise, planner_settings=settings,
-                   slam=slam, **split_params(spec.params)[1])
+                   **split_params(spec.params)[1])
+  slam = overrides.get("slam", SimConfig.slam)
   for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
     if getattr(spec, name) is not None:
       overrides[name] = getattr(spec, name)

@@ -32,14 +32,13 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from jaxplore.config import PARAM_FIELDS, PRESETS, SLAM_MODELS, STRATEGIES, ConfigError
+from jaxplore.config import (PARAM_FIELDS, PRESETS, SLAM_MODELS, STATIC_SETTINGS, STRATEGIES,
+                             ConfigError)
 
-# Simulator settings that fix a static shape exactly (not just a bound): Li's effective radius
-# R_e sets the radius of li2020's gain kernel (dpi_min derives it, Eq 5-6), so every value is a
-# compiled program of its own.
-STATIC_PARAMS = ("r_e", "dpi_min", "slam_match_beams", "slam_smear", "slam_search_m", "slam_steps",
-                 "slam_fine_steps", "loop_search_m", "loop_smear", "loop_steps", "loop_candidates",
-                 "slam_iterations", "map_hole_cells")
+# The static simulator settings a user sets by name (each value is a compiled program of its
+# own), as SimConfig declares them.
+STATIC_PARAMS = tuple(STATIC_SETTINGS)
+WORD_PARAMS = tuple(name for name, s in STATIC_SETTINGS.items() if s.choices)  # e.g. slam
 SIM_PARAMS = PARAM_FIELDS + tuple(n for n in STATIC_PARAMS if n not in PARAM_FIELDS)
 SEED_LIMIT = 2**32  # a PRNG seed is a uint32: larger seeds would alias smaller ones
 AXES = ("world", "planner", "robots", "seed", "robot_seeds")  # what a sweep varies row by row
@@ -116,18 +115,46 @@ def _value(value, what: str, text_allowed: bool = False):
   raise ConfigError(f"{what} must be a number, got {value!r}")
 
 
-def _mapping(values, what: str, text_allowed: bool = False) -> Mapping:
+def _mapping(values, what: str, text_allowed: bool = False, words=()) -> Mapping:
+  """``values`` checked name by name (:func:`_value`); ``words``: names that take a word even
+  where ``text_allowed`` is off (the simulator's word-valued settings, such as ``slam``)."""
   if values is None:
     return _EMPTY
   if not isinstance(values, Mapping):
     raise ConfigError(f"{what} must map names to numbers, got {values!r}")
-  return types.MappingProxyType({str(k): _value(v, f"{what}[{k!r}]", text_allowed)
-                                 for k, v in values.items()})
+  return types.MappingProxyType({
+      str(k): _value(v, f"{what}[{k!r}]", text_allowed or (str(k) in words and not
+                                                              isinstance(v, (bool, np.bool_))))
+      for k, v in values.items()})
+
+
+def _misplaced(params: Mapping, planner_params: Mapping, planner) -> list[tuple[str, str, str]]:
+  """(name, its table, the table it belongs to) of each name given to the other table: a user
+  names a setting without saying whose it is, so a planner's weight or setting may come in
+  ``params`` (``--set``) and a simulator parameter in ``planner_params``. A name given to both
+  is refused."""
+  from jaxplore.planners import get_planner
+  try:
+    spec = get_planner(planner)
+  except ConfigError:
+    return []  # refused later, naming the planner
+  moves = []
+  for name in map(str, params):
+    if kind_of(name, spec) in ("weight", "setting"):
+      moves.append((name, "params", "planner_params"))
+  for name in map(str, planner_params):
+    if name in SIM_PARAMS:
+      moves.append((name, "planner_params", "params"))
+  for name, source, target in moves:
+    if name in (planner_params if target == "planner_params" else params):
+      raise ConfigError(f"{name} is given twice (as a simulator parameter and a planner "
+                        f"parameter); give it once")
+  return moves
 
 
 def _refuse_unknown_params(params: Mapping, planner: str) -> None:
-  """Refuses names in ``params`` that are no simulator parameter, pointing a weight or setting
-  of ``planner`` given there to ``planner_params``."""
+  """Refuses names in ``params`` that are no simulator parameter (a planner's were moved to
+  ``planner_params`` before), listing the valid names."""
   unknown = sorted(set(map(str, params)) - set(SIM_PARAMS))
   if not unknown:
     return
@@ -137,11 +164,11 @@ def _refuse_unknown_params(params: Mapping, planner: str) -> None:
     spec = get_planner(planner)
   except ConfigError:
     raise ConfigError(message) from None
-  theirs = [name for name in unknown if kind_of(name, spec) in ("weight", "setting")]
-  if theirs:
-    message += (f". {', '.join(theirs)}: of planner {planner!r}, so planner_params (the "
-                f"flags --planner-set NAME=VALUE or --NAME VALUE)")
-  raise ConfigError(message)
+  settings = planner_settings_of(spec)
+  theirs = sorted(spec.defaults) + sorted(
+      f.name for f in (dataclasses.fields(settings) if settings is not None else ()))
+  raise ConfigError(f"{message}; of planner {planner!r}: {', '.join(theirs) or 'none'} "
+                    f"(jaxplore settings --planner {planner} lists them with their ranges)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,7 +192,8 @@ class RunSpec:
       grid always); None: sized from the sensor range.
     pose_noise: noisy odometry, scans integrated at the dead-reckoned estimate.
     slam: the SLAM model, ``"oracle"`` or ``"scan_matching"``
-      (:attr:`jaxplore.config.SimConfig.slam`); None: ``"oracle"``.
+      (:attr:`jaxplore.config.SimConfig.slam`): the same as ``params["slam"]``, where
+      construction puts it (this field is then None); unset: ``"oracle"``.
     pose_graph: keep each robot's SLAM pose graph and its metrics (:mod:`jaxplore.posegraph`);
       None: when the planner reads one (ahmed, ags).
     graph_loops: loop-closure capacity of the pose graph; None: the engine's default.
@@ -241,17 +269,32 @@ class RunSpec:
     if not isinstance(self.pose_noise, (bool, np.bool_)):
       raise ConfigError(f"pose_noise must be true or false, got {self.pose_noise!r}")
     put("pose_noise", bool(self.pose_noise))
-    if self.slam is not None and self.slam not in SLAM_MODELS:
-      raise ConfigError(f"slam must be one of {', '.join(SLAM_MODELS)}, got {self.slam!r}")
     if self.pose_graph is not None:
       if not isinstance(self.pose_graph, (bool, np.bool_)):
         raise ConfigError(f"pose_graph must be true or false, got {self.pose_graph!r}")
       put("pose_graph", bool(self.pose_graph))
     if self.graph_loops is not None:
       put("graph_loops", positive_int(self.graph_loops, "graph_loops"))
+    if isinstance(self.params, Mapping) and isinstance(self.planner_params, Mapping):
+      put("params", self.params)
+      put("planner_params", self.planner_params)
+      for name, source, target in _misplaced(self.params, self.planner_params, self.planner):
+        put(target, {**getattr(self, target), name: getattr(self, source)[name]})
+        put(source, {k: v for k, v in getattr(self, source).items() if k != name})
     if isinstance(self.params, Mapping):  # names first: a planner's word is no number either
       _refuse_unknown_params(self.params, self.planner)
-    params = _mapping(self.params, "params")
+    params = _mapping(self.params, "params", words=WORD_PARAMS)
+    for name in WORD_PARAMS:
+      value = params.get(name)
+      for word in (value if isinstance(value, tuple) else () if value is None else (value,)):
+        STATIC_SETTINGS[name].check(word, name)
+    if self.slam is not None:  # the flag --slam is the setting slam
+      if self.slam not in SLAM_MODELS:
+        raise ConfigError(f"slam must be one of {', '.join(SLAM_MODELS)}, got {self.slam!r}")
+      if params.get("slam", self.slam) != self.slam:
+        raise ConfigError(f"slam is given twice, as {self.slam!r} and {params['slam']!r}")
+      params = types.MappingProxyType({**params, "slam": self.slam})
+      put("slam", None)
     put("params", params)
     put("planner_params", _mapping(self.planner_params, "planner_params", text_allowed=True))
     for what, values in (("parameter", params), ("planner parameter", self.planner_params)):
@@ -456,8 +499,9 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
   if "out" in data:
     kwargs["out"] = typed("out", str, "a folder path")
   for key, target in (("set", "params"), ("planner_set", "planner_params")):
-    if key in data:
-      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}", key == "planner_set")
+    if key in data:  # a planner's names take words; a run spec checks them
+      numeric = lambda name: name in SIM_PARAMS and name not in WORD_PARAMS
+      kwargs[target] = {name: _value(v, f"{where}: [{key}] {name}", not numeric(name))
                         for name, v in table(key).items()}
   return kwargs
 

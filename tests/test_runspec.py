@@ -49,21 +49,24 @@ def test_bad_settings_are_refused_naming_them(settings, match):
     RunSpec.create(**settings)
 
 
-def test_a_name_given_to_the_wrong_table_is_pointed_to_the_right_one(capsys):
-  """A planner's weight or word-valued setting among the simulator's parameters, or a simulator
-  parameter among the planner's, is refused naming the table (and flags) it belongs to; a
-  word given to ``--set`` is refused by its name, not as "no number"."""
-  with pytest.raises(ConfigError, match=r"\['k1'\].*k1: of planner 'li2020', so planner_params"):
-    RunSpec.create(planner="li2020", params={"k1": 0.2})
-  with pytest.raises(ConfigError, match=r"region: of planner 'li2020', so planner_params"):
-    RunSpec.create(planner="li2020", params={"region": "disc"})
-  with pytest.raises(ConfigError, match=r"unknown parameter.*warp'\]; valid: [a-z0-9_, ]*$"):
-    RunSpec.create(planner="li2020", params={"warp": 1.0})  # nobody's: no pointer
-  with pytest.raises(ConfigError,
-                     match=r"no parameter\(s\) \['r_max'\].*r_max: the simulator's, so params"):
-    runner.prepare(world="lab", planner="li2020", planner_params={"r_max": 3.0})
-  assert cli.main(["run", "--world", "lab", "--planner", "li2020", "--set", "region=disc"]) == 2
-  assert "region: of planner 'li2020'" in capsys.readouterr().err
+def test_a_setting_is_named_without_saying_whose_it_is(capsys):
+  """A planner's weight or word-valued setting among the simulator's parameters (``--set``), or
+  a simulator parameter among the planner's, goes where it belongs; a name given to both, or to
+  nobody, is refused naming it."""
+  spec = RunSpec.create(planner="li2020", params={"k1": 0.2, "region": "disc", "r_max": 5.0},
+                        planner_params={"alpha": 2.0})
+  assert dict(spec.params) == {"r_max": 5.0, "alpha": 2.0}
+  assert dict(spec.planner_params) == {"k1": 0.2, "region": "disc"}
+  same = RunSpec.create(planner="li2020", params={"r_max": 5.0, "alpha": 2.0},
+                        planner_params={"k1": 0.2, "region": "disc"})
+  assert spec == same
+  with pytest.raises(ConfigError, match="k1 is given twice"):
+    RunSpec.create(planner="li2020", params={"k1": 0.2}, planner_params={"k1": 0.3})
+  with pytest.raises(ConfigError, match=r"unknown parameter.*warp'\]; valid: .*; of planner "
+                     r"'li2020': det_sigma_max, .*region.* \(jaxplore settings --planner li2020"):
+    RunSpec.create(planner="li2020", params={"warp": 1.0})
+  assert cli.main(["settings", "warp"]) == 2
+  assert "no setting(s) ['warp']" in capsys.readouterr().err
 
 
 def test_kinds_of_names_route_weights_and_static_settings():

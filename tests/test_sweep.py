@@ -557,3 +557,21 @@ def test_the_readme_toml_example_schedules_without_an_error(tmp_path, stop_at_co
   assert {r.resolved.grid.name for r in group_runs} == {"lab", "office"}
   assert all(r.resolved.config.res == 0.2 for r in group_runs)
   assert (tmp_path / "runs" / "sweep_toml" / sweeps.SCHEDULE_FILE).exists()
+
+
+def test_the_slam_model_is_a_grid_axis():
+  """``slam`` is a word-valued static setting of the simulator: ``--grid
+  slam=oracle,scan_matching`` makes a group (a compiled program) per model, each resolving to its
+  SLAM model; a word no model has is refused before any compute."""
+  from jaxplore.sweeps import schedule
+  spec = settings.make_spec(grid={"slam": ["oracle", "scan_matching"], "r_max": [1.5, 2.0]},
+                            seeds=[0], worlds=["open"], planners=["nearest_frontier"],
+                            base=RunSpec.create(res=0.5, max_steps=30))
+  groups = schedule.split_groups(spec)
+  assert len(groups) == 2 and [len(g.rows) for g in groups] == [2, 2]
+  configs = [schedule.resolve_group(spec, g, None, {}).config for g in groups]
+  assert [c.slam for c in configs] == ["oracle", "scan_matching"]
+  assert [c.map_hole_cells for c in configs] == [0, 4] and configs[1].graph_nodes > 0
+  with pytest.raises(ConfigError, match="grid value of 'slam' must be one of oracle, "
+                     "scan_matching, got 'lidar'"):
+    jaxplore.sweep({"slam": ["oracle", "lidar"]}, seeds=1, **SETTINGS)

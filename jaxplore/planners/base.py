@@ -29,6 +29,7 @@ import jax.numpy as jnp
 
 from jaxplore import mapping
 from jaxplore.config import PARAM_FIELDS, ConfigError
+from jaxplore.settings import Setting, declared
 
 
 @dataclasses.dataclass(frozen=True)
@@ -220,6 +221,23 @@ class PlannerSpec:
       if kind is float and not math.isfinite(converted[name]):
         raise ConfigError(f"planner {self.name!r}: setting {name} must be finite, got {value!r}")
     return dataclasses.replace(self.settings, **converted)
+
+  def declared_settings(self) -> list[Setting]:
+    """The planner's traced weights and static settings as :class:`jaxplore.settings.Setting`
+    declarations (listings, documentation): a settings field declared with
+    :func:`jaxplore.settings.setting` brings its help and range, the others their default."""
+    owner = f"planner {self.name}"
+    out = [Setting(default=float(v), help="", owner=owner, name=k)
+           for k, v in self.defaults.items()]
+    if self.settings is not None:
+      declared_fields = declared(type(self.settings))
+      for field in dataclasses.fields(self.settings):
+        default = getattr(self.settings, field.name)
+        found = declared_fields.get(field.name)
+        out.append(dataclasses.replace(found, default=default, owner=owner, static=True)
+                   if found is not None else
+                   Setting(default=default, help="", owner=owner, static=True, name=field.name))
+    return out
 
   def split_overrides(self, overrides: dict | None):
     """Splits user overrides (``--planner-set``) into (traced weights, static settings)."""

@@ -15,9 +15,9 @@ from typing import Mapping
 
 import numpy as np
 
-from jaxplore.config import ConfigError
-from jaxplore.runspec import (AXES, RUN_ONLY, SHARED, TOML_KEYS, RunSpec, kind_of, number,
-                              read_toml, seed_value, settings_from_toml)
+from jaxplore.config import STATIC_SETTINGS, ConfigError
+from jaxplore.runspec import (AXES, RUN_ONLY, SHARED, TOML_KEYS, WORD_PARAMS, RunSpec, kind_of,
+                              number, read_toml, seed_value, settings_from_toml)
 
 DEFAULT_SEEDS = 8  # seeds per setting when none are given
 
@@ -280,9 +280,13 @@ def make_spec(grid=None, random=None, samples=None, random_seed=None, seeds=None
                         f"planner {' or '.join(repr(p) for p in planners)} "
                         f"({', '.join(weights) or 'none'})")
   for name, values in grid.items():
-    if is_word_axis(values) and not any(kind_of(name, s) == "setting" for s in specs.values()):
+    if name in WORD_PARAMS:
+      for value in values:
+        STATIC_SETTINGS[name].check(value, f"grid value of {name!r}")
+    elif is_word_axis(values) and not any(kind_of(name, s) == "setting"
+                                          for s in specs.values()):
       raise ConfigError(f"grid value of {name!r} must be a number, got {list(values)} (words "
-                        f"are for a planner's word-valued setting, such as li2020's region)")
+                        f"are for a word-valued setting, such as slam or li2020's region)")
   for what, values in (("params", base.params), ("planner_params", base.planner_params)):
     for name, value in values.items():
       if isinstance(value, tuple):
