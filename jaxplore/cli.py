@@ -22,7 +22,8 @@ def _number_or_text(value: str, text_allowed: bool):
     return float(value)
   except ValueError:
     if text_allowed:
-      return value.strip()
+      word = value.strip()
+      return {"true": True, "false": False}.get(word.lower(), word)
     raise
 
 
@@ -84,8 +85,9 @@ def settings_listing(planners=(), names=(), markdown: bool = False) -> str:
   (``"all"``: every registered planner's), only ``names`` if given."""
   from jaxplore.config import PARAM_SETTINGS, STATIC_SETTINGS, ConfigError
   from jaxplore.planners import get_planner, planner_names
+  from jaxplore.runspec import RUN_SETTINGS
   from jaxplore.settings import table
-  rows = [*PARAM_SETTINGS.values(), *STATIC_SETTINGS.values()]
+  rows = [*RUN_SETTINGS.values(), *PARAM_SETTINGS.values(), *STATIC_SETTINGS.values()]
   chosen = planner_names() if "all" in planners else list(planners)
   for planner in chosen:
     rows += get_planner(planner).declared_settings()
@@ -168,18 +170,14 @@ def _reporting_errors(compute):
 
 def _spec_flags(args, extra, planners) -> dict:
   """The run settings given as flags (None where not given), parameter tables included."""
+  from jaxplore.runspec import RUN_SETTINGS, SHARED
   params, planner_params = _parameter_flags(extra, planners)
-  # words pass: a planner's setting given to --set is refused by name, not as "no number"
+  # words pass: a RunSpec checks each name's values (and moves each to its owner)
   params.update(_key_values(args.set, "--set", text_allowed=True))
   planner_params.update(_key_values(args.planner_set, "--planner-set", text_allowed=True))
-  return dict(preset=args.preset, res=args.res, start=args.start, max_steps=args.max_steps,
-              replan_every=args.replan_every, path_capacity=args.path_capacity,
-              plan_window=args.plan_window, pose_noise=args.pose_noise, slam=args.slam,
-              pose_graph=args.pose_graph, graph_loops=args.graph_loops,
-              rate_interval=args.rate_interval, chunk_epochs=args.chunk_epochs,
-              strategy=args.strategy,
-              params=params or None, planner_params=planner_params or None,
-              out=args.out, devices=args.devices)
+  flags = {name: getattr(args, name) for name in RUN_SETTINGS if name in SHARED}
+  return dict(flags, start=args.start, slam=args.slam, params=params or None,
+              planner_params=planner_params or None, out=args.out, devices=args.devices)
 
 
 def _run(args, extra) -> int:
@@ -272,44 +270,34 @@ def _sweep(args, extra) -> int:
   return 0
 
 
+def _add_setting_flag(p, name: str, declaration) -> None:
+  """``--NAME`` for a declared run setting (:data:`jaxplore.runspec.RUN_SETTINGS`): its type,
+  choices and help from the declaration; unset (None) unless given."""
+  from jaxplore.settings import default_text
+  default = declaration.unset if declaration.default is None else default_text(declaration)
+  help_text = f"{declaration.help} (default: {default})"
+  flag = "--" + name.replace("_", "-")
+  if declaration.boolean:
+    p.add_argument(flag, action="store_true", default=None, help=help_text)
+  elif declaration.choices:
+    p.add_argument(flag, choices=declaration.choices, default=None, help=help_text)
+  else:
+    p.add_argument(flag, type=int if declaration.integer else float, default=None,
+                   help=help_text)
+
+
 def _add_spec_flags(p):
   """The run settings shared by ``jaxplore run`` and ``jaxplore sweep`` (defaults: RunSpec's)."""
-  from jaxplore.runspec import RunSpec
-  p.add_argument("--preset", default=None,
-                 help=f"sensor/robot preset (default: the planner's paper's, where it brings one "
-                      f"(toriz for ereg, reg, srg, srt), else {RunSpec.preset})")
-  p.add_argument("--res", type=float, default=None, help="planning resolution, m/cell")
+  from jaxplore.runspec import RUN_SETTINGS, SHARED
+  for name, declaration in RUN_SETTINGS.items():
+    if name in SHARED:
+      _add_setting_flag(p, name, declaration)
   p.add_argument("--start", default=None,
                  help="x,y[,theta] start for every robot (default: random)")
-  p.add_argument("--max-steps", type=int, default=None,
-                 help="step budget per robot (default: from the world's free area)")
-  p.add_argument("--replan-every", type=int, default=None,
-                 help="steps between planning rounds of a robot on its path "
-                 "(default: the preset's)")
-  p.add_argument("--path-capacity", type=int, default=None, help="waypoints a path may hold")
-  p.add_argument("--plan-window", type=int, default=None, metavar="CELLS",
-                 help="window nearest frontier plans on first (0: whole grid; default from the "
-                 "range)")
-  p.add_argument("--pose-noise", action="store_true", default=None,
-                 help="noisy odometry, drifting estimate")
   p.add_argument("--slam", choices=("oracle", "scan_matching"), default=None,
-                 help="SLAM model: oracle (relocalised by its true pose) or scan_matching (scan "
-                 "matching against its own map, loop closures, pose-graph optimisation; turns "
-                 "--pose-noise on). Default: oracle")
-  p.add_argument("--pose-graph", action="store_true", default=None,
-                 help="keep each robot's SLAM pose graph and its metrics (always on for ahmed "
-                 "and ags)")
-  p.add_argument("--graph-loops", type=int, default=None, metavar="N",
-                 help="loop-closure capacity of the pose graph (default 256)")
-  p.add_argument("--rate-interval", type=float, default=None,
-                 help=f"metres per interval of Std(E_r) (default {RunSpec.rate_interval:g})")
-  p.add_argument("--chunk-epochs", type=int, default=None,
-                 help="planning rounds per compiled call (progress granularity)")
-  p.add_argument("--strategy", default=None, choices=("auto", "per_robot", "lockstep"),
-                 help="how the batch is executed: per_robot (robots one or a few at a time through "
-                 "the irregular stages) or lockstep (one kernel per stage for the whole batch); "
-                 "the results are the same, the map-entropy metric to its last bits (default auto: "
-                 "per_robot on CPU, lockstep on GPU/TPU)")
+                 help="the setting slam: the SLAM model, oracle (relocalised by its true pose) or "
+                 "scan_matching (scan matching against its own map, loop closures, pose-graph "
+                 "optimisation; turns --pose-noise on). Default: oracle")
   p.add_argument("--set", action="append", metavar="NAME=VALUE",
                  help="any setting, the simulator's or the planner's ('jaxplore settings' lists "
                  "them; or pass it as --NAME VALUE, e.g. --alpha 1.5 --k1 0.2)")
@@ -350,8 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
   run.add_argument("--world", default=None,
                    help=f"built-in world name or map_server YAML path (default {RunSpec.world})")
   run.add_argument("--planner", default=None, help=f"planner (default {RunSpec.planner})")
-  run.add_argument("--robots", type=int, default=None,
-                   help=f"batch size (default {RunSpec.robots})")
+  from jaxplore.runspec import RUN_SETTINGS
+  _add_setting_flag(run, "robots", RUN_SETTINGS["robots"])
   run.add_argument("--seed", type=int, default=None, help=f"PRNG seed (default {RunSpec.seed})")
   run.add_argument("--robot-seeds", default=None, metavar="S1,S2,...",
                    help="one PRNG seed per robot instead of --seed (robot b starts as seed b does "

@@ -235,6 +235,7 @@ def resolve(spec: RunSpec) -> Resolved:
   config = config_for(grid.shape, grid.res, params, preset=spec.preset, max_steps=max_steps,
                       **overrides)
   validate_params(params, config)
+  planner.check_weights(params.planner)
   if planner.validate is not None:
     planner.validate({k: np.asarray(v) for k, v in params.planner.items()}, params,
                      sim.planner_context(config))

@@ -137,6 +137,8 @@ def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
     raise ConfigError(f"planner {config.planner!r}: planner_settings must be a "
                       f"{type(spec.settings).__module__}.{type(spec.settings).__qualname__}, "
                       f"got {type(settings).__qualname__}")
+  if settings is not None:
+    planners_base.check_settings(config.planner, settings)
   if spec.needs_pose_graph and not config.graph_nodes:
     raise ConfigError(f"planner {config.planner!r} plans on the SLAM pose graph, but "
                       f"SimConfig.graph_nodes is 0: give it room for the run's keyframes "

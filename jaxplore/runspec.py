@@ -12,12 +12,12 @@ Construction checks every value that needs no map or planner registry (types, ra
 the start pose, parameter names), so a bad setting is refused before any compute; the rest
 (planner weights, ranges that depend on the grid) is checked by the resolver.
 
-Parameter names fall in four kinds (:func:`kind_of`): traced simulator parameters
-(:class:`jaxplore.config.Params` fields; sweeping them never recompiles), static simulator
-settings (:data:`STATIC_PARAMS`: each value is a compiled program of its own), a planner's
-traced weights (its registered ``defaults``) and a planner's static settings (the fields of its
-registered ``settings`` dataclass). ``params`` holds the first two, ``planner_params`` the last
-two (the command line's ``--set`` and ``--planner-set``).
+Every setting is declared once (:mod:`jaxplore.settings`): the run's own (this class's
+declared fields, :data:`RUN_SETTINGS`: flags of ``jaxplore run``, top-level TOML keys), traced simulator parameters (:class:`jaxplore.config.Params`; sweeping them never
+recompiles), static simulator settings (:data:`STATIC_PARAMS`: each value is a compiled program
+of its own), a planner's traced weights and its static settings (:func:`kind_of`). A user names
+any of them in ``params`` (``--set``, a TOML ``[set]`` table) without saying whose it is:
+construction moves a run setting to its field and a planner's name to ``planner_params``.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ import numpy as np
 
 from jaxplore.config import (PARAM_FIELDS, PRESETS, SLAM_MODELS, STATIC_SETTINGS, STRATEGIES,
                              ConfigError)
+from jaxplore.settings import declared, setting
 
 # The static simulator settings a user sets by name (each value is a compiled program of its
 # own), as SimConfig declares them.
@@ -210,25 +211,55 @@ class RunSpec:
 
   world: Any = "office"
   planner: str = "nearest_frontier"
-  robots: int = 16
+  robots: int = setting(16, "robots in the batch", owner="run", static=True, ge=1,
+                       integer=True)
   seed: int = 0
   robot_seeds: tuple[int, ...] | None = None
-  preset: str | None = "li2020"
-  res: float | None = None
+  preset: str | None = setting("li2020", "the sensor and robot of a paper (r_max, fov, v_max, "
+                               "w_max, beams); the planner's paper's where it brings one",
+                               owner="run", static=True, choices=tuple(PRESETS),
+                               unset="the bare defaults")
+  res: float | None = setting(None, "resample a loaded world to this resolution (coarser only)",
+                              owner="run", unit="m/cell", static=True, gt=0,
+                              unset="the map's own")
   start: tuple[float, float, float] | None = None
-  max_steps: int | None = None
-  replan_every: int | None = None
-  path_capacity: int | None = None
-  plan_window: int | None = None
-  pose_noise: bool = False
+  max_steps: int | None = setting(None, "step budget per robot", owner="run", static=True, ge=1,
+                                  integer=True, unset="from the world's free area and the "
+                                  "robot's speed")
+  replan_every: int | None = setting(None, "motion steps between planning rounds of a robot "
+                                     "on its path", owner="run", static=True, ge=1, integer=True,
+                                     unset="the preset's")
+  path_capacity: int | None = setting(None, "waypoints a path may hold", owner="run",
+                                      static=True, ge=2,
+                                      integer=True, unset="256")
+  plan_window: int | None = setting(None, "side in cells of the window a windowed planner "
+                                    "(nearest frontier, fd) plans on first (0: the whole grid)",
+                                    owner="run", static=True, ge=0, integer=True,
+                                    unset="sized from the sensor range")
+  pose_noise: bool = setting(False, "noisy odometry, scans integrated at the dead-reckoned "
+                             "estimate (on with slam = scan_matching)", owner="run",
+                             static=True, boolean=True)
   slam: str | None = None
-  pose_graph: bool | None = None
-  graph_loops: int | None = None
+  pose_graph: bool | None = setting(None, "keep each robot's SLAM pose graph and its metrics",
+                                    owner="run", static=True, boolean=True,
+                                    unset="when the planner reads one (ahmed, ags) or with "
+                                    "slam = scan_matching")
+  graph_loops: int | None = setting(None, "loop-closure capacity of the pose graph",
+                                    owner="run", static=True, ge=1, integer=True,
+                                    unset="256")
   params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   planner_params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
-  rate_interval: float = 1.0
-  chunk_epochs: int | None = None
-  strategy: str | None = None
+  rate_interval: float = setting(1.0, "metres per interval of Std(E_r)", owner="run", unit="m",
+                                 host=True, gt=0)
+  chunk_epochs: int | None = setting(None, "planning rounds per compiled call (progress and "
+                                     "early-stop granularity; the results do not depend on it)",
+                                     owner="run", host=True, ge=1, integer=True,
+                                     unset="about 500 steps")
+  strategy: str | None = setting(None, "how the batch is executed: per_robot (robots one or a "
+                                 "few at a time through the irregular stages) or lockstep (one "
+                                 "kernel per stage for the whole batch); the results do not "
+                                 "depend on it", owner="run", static=True, choices=STRATEGIES,
+                                 unset="auto: per_robot on a CPU, lockstep on a GPU or TPU")
 
   def __post_init__(self):
     put = lambda name, value: object.__setattr__(self, name, value)
@@ -239,7 +270,15 @@ class RunSpec:
       raise ConfigError(f"world must be a world name, a map YAML path or a GridMap, got {world!r}")
     if not isinstance(self.planner, str):
       raise ConfigError(f"planner must be a planner name, got {self.planner!r}")
-    put("robots", positive_int(self.robots, "robots"))
+    if isinstance(self.params, Mapping):  # a run setting named in --set / [set]
+      for name in [n for n in self.params if n in RUN_SETTINGS]:
+        value, mine = self.params[name], getattr(self, name)
+        if mine != RUN_SETTINGS[name].default and mine != value:
+          raise ConfigError(f"{name} is given twice, as {mine!r} and {value!r}")
+        put(name, value)
+        put("params", {k: v for k, v in self.params.items() if k != name})
+    for name, declaration in RUN_SETTINGS.items():
+      put(name, declaration.convert(getattr(self, name), name))
     put("seed", seed_value(self.seed))
     if self.robot_seeds is not None:
       if isinstance(self.robot_seeds, (str, bytes)) or not hasattr(self.robot_seeds, "__iter__"):
@@ -248,33 +287,7 @@ class RunSpec:
       if len(seeds) != self.robots:
         raise ConfigError(f"robot_seeds has {len(seeds)} seeds for {self.robots} robots")
       put("robot_seeds", seeds)
-    if self.preset is not None and self.preset not in PRESETS:
-      raise ConfigError(f"unknown preset {self.preset!r}; valid presets: "
-                        f"{', '.join(sorted(PRESETS))}")
-    if self.res is not None:
-      res = number(self.res, "res")
-      if res <= 0:
-        raise ConfigError(f"res must be a positive number of metres per cell, got {self.res!r}")
-      put("res", res)
     put("start", parse_start(self.start))
-    for name in ("max_steps", "replan_every", "path_capacity", "chunk_epochs"):
-      if getattr(self, name) is not None:
-        put(name, positive_int(getattr(self, name), name))
-    if self.plan_window is not None:
-      if not _is_int(self.plan_window) or self.plan_window < 0:
-        raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
-      put("plan_window", int(self.plan_window))
-    if self.strategy is not None and self.strategy not in STRATEGIES:
-      raise ConfigError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
-    if not isinstance(self.pose_noise, (bool, np.bool_)):
-      raise ConfigError(f"pose_noise must be true or false, got {self.pose_noise!r}")
-    put("pose_noise", bool(self.pose_noise))
-    if self.pose_graph is not None:
-      if not isinstance(self.pose_graph, (bool, np.bool_)):
-        raise ConfigError(f"pose_graph must be true or false, got {self.pose_graph!r}")
-      put("pose_graph", bool(self.pose_graph))
-    if self.graph_loops is not None:
-      put("graph_loops", positive_int(self.graph_loops, "graph_loops"))
     if isinstance(self.params, Mapping) and isinstance(self.planner_params, Mapping):
       put("params", self.params)
       put("planner_params", self.planner_params)
@@ -301,10 +314,6 @@ class RunSpec:
       for name, value in values.items():
         if isinstance(value, tuple) and len(value) != self.robots:
           raise ConfigError(f"{what} {name} has {len(value)} values for {self.robots} robots")
-    rate = number(self.rate_interval, "rate_interval")
-    if rate <= 0:
-      raise ConfigError(f"rate_interval must be a positive number of metres, got {rate!r}")
-    put("rate_interval", rate)
 
   @classmethod
   def create(cls, **settings) -> RunSpec:
@@ -349,6 +358,7 @@ class RunSpec:
     return cls(**{**data, **replace})
 
 
+RUN_SETTINGS = declared(RunSpec)  # the run's own settings (owner "run")
 FIELDS = tuple(f.name for f in dataclasses.fields(RunSpec))
 SHARED = tuple(name for name in FIELDS if name not in AXES)  # what every row of a sweep shares
 
@@ -388,31 +398,19 @@ TOML_KEYS = {
     "worlds": "a list of worlds (sweep)",
     "planner": "a planner name (a list of them in a sweep)",
     "planners": "a list of planners (sweep)",
-    "robots": "batch size (run)",
     "seed": "PRNG seed of the batch (run)",
     "robot_seeds": "one PRNG seed per robot, instead of seed (run)",
     "seeds": "number of seeds, or a list of seeds (sweep)",
-    "preset": "sensor/robot preset",
-    "res": "planning resolution, m/cell",
     "start": "x,y[,theta] start of every robot",
-    "max_steps": "step budget per episode",
-    "replan_every": "motion steps between planning rounds",
-    "path_capacity": "waypoints a path may hold",
-    "plan_window": "cells of the window a windowed planner plans on first (0: whole grid)",
-    "pose_noise": "noisy odometry (true/false)",
     "slam": "SLAM model: oracle or scan_matching",
-    "pose_graph": "keep each robot's SLAM pose graph and its metrics (true/false)",
-    "graph_loops": "loop-closure capacity of the pose graph",
-    "rate_interval": "metres per interval of Std(E_r)",
-    "chunk_epochs": "planning rounds per compiled call",
-    "strategy": "auto, per_robot or lockstep: how the batch is executed",
+    **{name: declaration.help for name, declaration in RUN_SETTINGS.items()},
     "chunk_size": "robot-episodes per chunk (sweep)",
     "out": "results folder",
     "devices": "local devices to shard over",
     "grid": "[grid] table: name = [values] (sweep)",
     "random": "[random] table: name = {low=, high=, log=}, samples = N, seed = S (sweep)",
-    "set": "[set] table: simulator parameters",
-    "planner_set": "[planner_set] table: planner weights and settings",
+    "set": "[set] table: any setting by name (jaxplore settings lists them)",
+    "planner_set": "[planner_set] table: the same as [set] (kept for older files)",
 }
 RUN_ONLY = ("robots", "seed", "robot_seeds")
 SWEEP_ONLY = ("worlds", "planners", "seeds", "chunk_size", "grid", "random")
@@ -464,34 +462,19 @@ def settings_from_toml(data: dict, where: str, allowed) -> dict:
     return value
 
   kwargs: dict = {}
-  for key in ("preset",):
+  for key, declaration in RUN_SETTINGS.items():
     if key in data:
-      kwargs[key] = typed(key, str, "a preset name")
-  if "strategy" in data:
-    kwargs["strategy"] = typed("strategy", str, f"one of {', '.join(STRATEGIES)}")
-  for key in ("res", "rate_interval"):
-    if key in data:
-      kwargs[key] = number(typed(key, (int, float), "a number"), f"{where}: {key}")
-  for key in ("robots", "max_steps", "replan_every", "path_capacity", "chunk_epochs", "devices",
-              "graph_loops"):
-    if key in data:
-      value = typed(key, int, "a positive integer")
-      if value < 1:
-        raise ConfigError(f"{where}: {key} must be a positive integer, got {value!r}")
-      kwargs[key] = value
-  if "plan_window" in data:
-    value = typed("plan_window", int, "a non-negative integer")
-    if value < 0:
-      raise ConfigError(f"{where}: plan_window must be a non-negative integer, got {value!r}")
-    kwargs["plan_window"] = value
+      kwargs[key] = declaration.convert(data[key], f"{where}: {key}")
+  if "devices" in data:
+    value = typed("devices", int, "a positive integer")
+    if value < 1:
+      raise ConfigError(f"{where}: devices must be a positive integer, got {value!r}")
+    kwargs["devices"] = value
   if "seed" in data:
     kwargs["seed"] = seed_value(typed("seed", int, "an integer"), f"{where}: seed")
   if "robot_seeds" in data:
     kwargs["robot_seeds"] = [seed_value(s, f"{where}: a robot seed")
                              for s in typed("robot_seeds", list, "a list of seeds")]
-  for key in ("pose_noise", "pose_graph"):
-    if key in data:
-      kwargs[key] = typed(key, bool, "true or false")
   if "slam" in data:
     kwargs["slam"] = typed("slam", str, "oracle or scan_matching")
   if "start" in data:

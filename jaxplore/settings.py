@@ -34,7 +34,8 @@ class Setting:
   Attributes:
     default: its value when none is given.
     help: one line for listings and documentation.
-    owner: the component it belongs to (``"lidar"``, ``"robot"``, ``"slam"``, ...).
+    owner: the component it belongs to (``"lidar"``, ``"robot"``, ``"slam"``, ...; a planner's
+      declarations leave it empty: the planner is their owner).
     unit: its unit (``"m"``, ``"rad"``, ``"s"``, ``"log-odds"``, ...), or ``""``.
     static: a value fixes the compiled program (a shape or a loop bound): each value of it is a
       program of its own, so a batch takes one value and a sweep groups rows by it. Otherwise it
@@ -43,7 +44,11 @@ class Setting:
       excluded.
     integer: a whole number (a count or a size).
     choices: the words it may take (a word-valued setting), else empty.
-    name: filled in by :func:`declared`.
+    boolean: a switch, true or false.
+    host: used on the host only (metrics, progress), never by the compiled program.
+    unset: what leaving it unset (None) means, where it may be left unset (the value is then
+      derived: from the world, the preset, the sensor range, ...); empty: it always has a value.
+    name: its name (the field's, filled in by :func:`declared`, unless given).
   """
 
   default: Any
@@ -57,43 +62,66 @@ class Setting:
   high_open: bool = False
   integer: bool = False
   choices: tuple[str, ...] = ()
+  boolean: bool = False
+  host: bool = False
+  unset: str = ""
   name: str = ""
 
   @property
+  def kind(self) -> str:
+    """``"static"``, ``"traced"`` or ``"host"`` (see the attributes)."""
+    return "host" if self.host else "static" if self.static else "traced"
+
+  @property
   def range_text(self) -> str:
-    """The range in words: ``"> 0"``, ``"in (0, 0.5)"``, ``"one of a, b"``, or ``"any"``."""
+    """The range in words: ``"> 0"``, ``"in (0, 0.5)"``, ``"a positive integer"``, ``"one of a,
+    b"``, ``"true or false"``, or ``"any"``."""
+    if self.boolean:
+      return "true or false"
     if self.choices:
       return "one of " + ", ".join(self.choices)
     low, high = self.low, self.high
+    if self.integer and high is None and low in (0, 1) and not self.low_open:
+      return "a positive integer" if low == 1 else "a non-negative integer"
     if low is not None and high is not None:
-      return (f"in {'(' if self.low_open else '['}{_number_text(low)}, {_number_text(high)}"
+      text = (f"in {'(' if self.low_open else '['}{_number_text(low)}, {_number_text(high)}"
               f"{')' if self.high_open else ']'}")
-    if low is not None:
-      return f"{'>' if self.low_open else '>='} {_number_text(low)}"
-    if high is not None:
-      return f"{'<' if self.high_open else '<='} {_number_text(high)}"
-    return "any"
+    elif low is not None:
+      text = f"{'>' if self.low_open else '>='} {_number_text(low)}"
+    elif high is not None:
+      text = f"{'<' if self.high_open else '<='} {_number_text(high)}"
+    else:
+      text = "any"
+    return f"an integer {text}" if self.integer else text
 
   def check(self, value, what: str | None = None) -> None:
     """Raises :class:`ConfigError` naming the setting when ``value`` (a scalar or an array of
-    per-robot values) is not a finite number in range, not whole where it must be, or not one
-    of the choices. ``what`` names it in the message (default ``"parameter NAME"``)."""
+    per-robot values) is not a finite number in range, not whole where it must be, not a switch
+    or not one of the choices. ``what`` names it in the message (default ``"parameter NAME"``).
+    None passes where the setting may be left unset."""
     what = what or f"parameter {self.name}"
+    if value is None and (self.unset or self.default is None):
+      return
+    if self.boolean:
+      if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"{what} must be true or false, got {value!r}")
+      return
     if self.choices:
       if value not in self.choices:
         raise ConfigError(f"{what} must be {self.range_text}, got {value!r}")
       return
-    if isinstance(value, (str, bytes)) or (isinstance(value, (bool, np.bool_))):
-      raise ConfigError(f"{what} must be a number, got {value!r}")
+    expected = self.range_text if self.integer else "a number"
+    if value is None or isinstance(value, (str, bytes, bool, np.bool_)):
+      raise ConfigError(f"{what} must be {expected}, got {value!r}")
     try:
       arr = np.asarray(value, np.float64)
     except (TypeError, ValueError):
-      raise ConfigError(f"{what} must be a number, got {value!r}") from None
+      raise ConfigError(f"{what} must be {expected}, got {value!r}") from None
     if not np.all(np.isfinite(arr)):
       raise ConfigError(f"{what} is NaN or infinite: {shown(arr, ~np.isfinite(arr))}")
-    if self.integer and not np.all(arr == np.round(arr)):
-      raise ConfigError(f"{what} must be a whole number, got {shown(arr, arr != np.round(arr))}")
     bad = ~self.within(arr)
+    if self.integer:
+      bad |= arr != np.round(arr)
     if np.any(bad):
       raise ConfigError(f"{what} must be {self.range_text}, got {shown(arr, bad)}")
 
@@ -111,8 +139,10 @@ class Setting:
     """A checked value (:meth:`check`) as the setting holds it: an int for an integer setting,
     a float or a word otherwise."""
     self.check(value, what)
-    if self.choices:
+    if value is None or self.choices:
       return value
+    if self.boolean:
+      return bool(value)
     return int(round(float(value))) if self.integer else float(value)
 
 
@@ -120,31 +150,35 @@ def _number_text(value: float) -> str:
   for multiple, text in ((1, "π"), (2, "2π"), (0.5, "π/2")):
     if math.isclose(value, multiple * math.pi):
       return text
-  return f"{value:g}"
+  return str(int(value)) if float(value).is_integer() and abs(value) < 1e15 else f"{value:g}"
 
 
-def setting(default, help: str, *, owner: str, unit: str = "", static: bool = False,
+def setting(default, help: str, *, owner: str = "", unit: str = "", static: bool = False,
             gt: float | None = None, ge: float | None = None, lt: float | None = None,
-            le: float | None = None, integer: bool = False,
-            choices: Iterable[str] = ()) -> Any:
+            le: float | None = None, integer: bool = False, choices: Iterable[str] = (),
+            boolean: bool = False, host: bool = False, unset: str = "", name: str = "") -> Any:
   """A dataclass field declaring a setting (see :class:`Setting`): ``gt``/``ge`` and
-  ``lt``/``le`` give its open or closed bounds."""
+  ``lt``/``le`` give its open or closed bounds; ``name``, the setting's name where it cannot
+  be the field's (a Python keyword such as ``lambda``)."""
   if gt is not None and ge is not None or lt is not None and le is not None:
     raise TypeError("give one lower bound (gt or ge) and one upper bound (lt or le)")
   declaration = Setting(default=default, help=help, owner=owner, unit=unit, static=static,
                         low=gt if gt is not None else ge, low_open=gt is not None,
                         high=lt if lt is not None else le, high_open=lt is not None,
-                        integer=integer, choices=tuple(choices))
+                        integer=integer, choices=tuple(choices), boolean=boolean,
+                        host=host, unset=unset, name=name)
   return dataclasses.field(default=default, metadata={"setting": declaration})
 
 
 def declared(cls) -> dict[str, Setting]:
-  """The settings a dataclass declares (:func:`setting` fields), by name, in field order."""
+  """The settings a dataclass declares (:func:`setting` fields), by name (the field's, unless
+  the declaration names itself), in field order."""
   out = {}
   for field in dataclasses.fields(cls):
     declaration = field.metadata.get("setting")
     if declaration is not None:
-      out[field.name] = dataclasses.replace(declaration, name=field.name)
+      name = declaration.name or field.name
+      out[name] = dataclasses.replace(declaration, name=name)
   return out
 
 
@@ -160,26 +194,27 @@ def table(settings: Iterable[Setting], markdown: bool = False) -> str:
                 "|---|---|---|---|---|"]
       for s in group:
         help_text = s.help.replace("|", "\\|")
-        lines.append(f"| `{s.name}` | {_kind(s)} | {_default_text(s)} | {s.range_text} | "
+        lines.append(f"| `{s.name}` | {s.kind} | {default_text(s)} | {s.range_text} | "
                      f"{help_text} |")
       lines.append("")
     else:
       lines.append(f"{owner}:")
-      cells = [(s.name, _kind(s), _default_text(s), s.range_text, s.help) for s in group]
+      cells = [(s.name, s.kind, default_text(s), s.range_text, s.help) for s in group]
       widths = [max(len(c[i]) for c in cells) for i in range(4)]
       for c in cells:
         lines.append("  " + "  ".join(f"{c[i]:<{widths[i]}}" for i in range(4)) + "  " + c[4])
   return "\n".join(line.rstrip() for line in lines).rstrip() + "\n"
 
 
-def _kind(s: Setting) -> str:
-  return "static" if s.static else "traced"
-
-
-def _default_text(s: Setting) -> str:
+def default_text(s: Setting) -> str:
+  """A setting's default as listings show it (with its unit; what unset means)."""
   value = s.default
+  if value is None:
+    return f"unset: {s.unset}" if s.unset else "unset"
+  if isinstance(value, bool):
+    return "true" if value else "false"
   text = (_number_text(value) if value else "0") if isinstance(value, float) else str(value)
   return f"{text} {s.unit}" if s.unit else text
 
 
-__all__ = ["Setting", "declared", "setting", "table"]
+__all__ = ["Setting", "declared", "default_text", "setting", "table"]

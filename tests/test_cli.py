@@ -136,8 +136,8 @@ def test_distributed_without_a_coordinator_says_what_to_set():
 
 
 @pytest.mark.parametrize("planner, setting, says", [
-    ("ahmed", "max_candidates=0", "ahmed: setting max_candidates = 0 must be at least 1"),
-    ("gpbo", "n_beams=1000000000", "gpbo: n_beams = 1000000000 beams per virtual scan; at most"),
+    ("ahmed", "max_candidates=0", "'ahmed': setting max_candidates must be"),
+    ("gpbo", "n_beams=1000000000", "'gpbo': setting n_beams must be"),
     ("gpbo", "n_train=2.5", "setting n_train must be"),
     ("ereg", "nodes=1000000000", "mostly for the planner's memory (ereg's settings)")])
 def test_a_planner_setting_that_cannot_work_is_refused_before_the_compile(capsys, planner,

@@ -202,12 +202,12 @@ def test_cli_takes_parameters_as_flags(tmp_path, capsys):
 # A batch that does not divide over the devices: tests/test_smoke.py (its two-device process).
 
 
-@pytest.mark.slow  # the README's Python example, run for 4 steps: `pytest -m slow`
+@pytest.mark.slow  # the user guide's Python example, run for 4 steps: `pytest -m slow`
 def test_the_readme_python_example_runs(tmp_path, monkeypatch):
-  """The README's Python block, as a user would paste it, with every run cut to 4 steps and no
+  """The user guide's Python block, as a user would paste it, with every run cut to 4 steps and no
   progress output (its settings otherwise as written: worlds, planners, grids, seeds)."""
   from conftest import REPO
-  block = re.search(r"```python\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
+  block = re.search(r"```python\n(.*?)```", (REPO / "docs" / "user-guide.md").read_text(), re.S).group(1)
   real_run, real_sweep = jaxplore.run, jaxplore.sweep
   short = dict(max_steps=4, progress=False, quiet=True)
   monkeypatch.setattr(jaxplore, "run", lambda *a, **k: real_run(*a, **{**k, **short}),

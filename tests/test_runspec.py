@@ -38,7 +38,7 @@ def test_create_takes_none_as_the_default_and_json_round_trips():
     (dict(params={"warp": 1.0}), "unknown parameter.*warp"),
     (dict(robots=2, params={"alpha": (1.0, 2.0, 3.0)}), "alpha has 3 values for 2 robots"),
     (dict(plan_window=-8), "plan_window"),
-    (dict(preset="hubble"), "unknown preset 'hubble'"),
+    (dict(preset="hubble"), "preset must be one of li2020, .*, got 'hubble'"),
     (dict(start="abc"), "start must be"),
     (dict(max_steps=0), "max_steps must be a positive integer"),
     (dict(rate_interval=0.0), "rate_interval"),

@@ -34,7 +34,7 @@ def test_a_setting_checks_its_range_bounds_whole_numbers_and_words():
     turn.check(3.2)
   count = Setting(3, "n", owner="x", low=1, integer=True, name="n")
   assert count.convert(4.0) == 4 and isinstance(count.convert(4.0), int)
-  with pytest.raises(ConfigError, match="must be a whole number, got 2.5"):
+  with pytest.raises(ConfigError, match="must be a positive integer, got 2.5"):
     count.convert(2.5)
   word = Setting("a", "w", owner="x", choices=("a", "b"), name="w")
   assert word.convert("b") == "b" and word.range_text == "one of a, b"
@@ -91,7 +91,7 @@ def test_static_settings_are_converted_and_checked_on_construction():
   config = SimConfig(height=8, width=8, res=0.1, slam_steps=3.0, slam_smear=1)
   assert config.slam_steps == 3 and isinstance(config.slam_steps, int)
   assert config.slam_smear == 1.0 and isinstance(config.slam_smear, float)
-  with pytest.raises(ConfigError, match="slam_steps must be a whole number, got 2.5"):
+  with pytest.raises(ConfigError, match="slam_steps must be a positive integer, got 2.5"):
     SimConfig(height=8, width=8, res=0.1, slam_steps=2.5)
   with pytest.raises(ConfigError, match="loop_smear must be > 0, got 0"):
     SimConfig(height=8, width=8, res=0.1, loop_smear=0.0)
@@ -114,3 +114,32 @@ def test_the_listing_names_every_setting_and_the_docs_page_is_current(capsys):
     names = [s.name for s in get_planner(planner).declared_settings()]
     assert all(f"| `{n}` |" in page for n in names)
   assert DOCS.read_text() == page, "regenerate docs/settings.md (see this test's docstring)"
+
+
+def test_run_settings_are_flags_toml_keys_and_set_names_from_one_declaration(tmp_path):
+  """A run setting (RunSpec's declared fields) is a flag of ``jaxplore run`` and ``sweep`` with
+  its declaration's type, choices and help, a TOML key checked by the declaration, and a name
+  ``--set`` takes; given twice with two values it is refused."""
+  from jaxplore.runspec import RUN_SETTINGS, SHARED, RunSpec, load_run_config
+  parser = cli.build_parser()
+  run_help = parser.parse_known_args(["run"])[0]
+  for name, s in RUN_SETTINGS.items():
+    flag = "--" + name.replace("_", "-")
+    assert hasattr(run_help, name), flag
+    assert s.help and s.owner == "run"
+    if name in SHARED:
+      assert hasattr(parser.parse_known_args(["sweep"])[0], name), flag
+  args = parser.parse_args(["run", "--max-steps", "40", "--strategy", "lockstep", "--pose-noise"])
+  assert (args.max_steps, args.strategy, args.pose_noise) == (40, "lockstep", True)
+  with pytest.raises(SystemExit):
+    parser.parse_args(["run", "--strategy", "sideways"])
+  path = tmp_path / "run.toml"
+  path.write_text("max_steps = 40.0\npose_noise = true\n[set]\nreplan_every = 4\nr_max = 2\n")
+  spec = RunSpec.create(**{k: v for k, v in load_run_config(path).items() if k != "out"})
+  assert (spec.max_steps, spec.pose_noise, spec.replan_every, dict(spec.params)) == (
+      40, True, 4, {"r_max": 2.0})
+  path.write_text("max_steps = 0\n")
+  with pytest.raises(ConfigError, match="run.toml: max_steps must be a positive integer, got 0"):
+    load_run_config(path)
+  with pytest.raises(ConfigError, match="max_steps is given twice"):
+    RunSpec.create(max_steps=30, params={"max_steps": 40})

@@ -494,7 +494,7 @@ def test_grid_words_are_refused_where_a_number_is_meant():
     jaxplore.sweep({"region": ["disc", 1.0]}, seeds=1, **SETTINGS)
   with pytest.raises(ConfigError, match="repeats a value"):
     jaxplore.sweep({"region": ["disc", "disc"]}, seeds=1, **SETTINGS)
-  with pytest.raises(ConfigError, match="region must be 'visible' or 'disc', got 'cube'"):
+  with pytest.raises(ConfigError, match="region must be one of visible, disc, got 'cube'"):
     jaxplore.sweep({"region": ["disc", "cube"]}, seeds=1, **SETTINGS)
   assert settings.normalise_grid({"region": "disc"}) == {"region": ("disc",)}
 
@@ -534,8 +534,8 @@ def stop_at_compute(tmp_path, monkeypatch):
 
 
 def test_the_readme_sweep_command_schedules_without_an_error(stop_at_compute):
-  """The README's `jaxplore sweep` command line passes every check before compute."""
-  line = re.search(r"^jaxplore sweep .*$", (REPO / "README.md").read_text(), re.M).group(0)
+  """The user guide's `jaxplore sweep` command line passes every check before compute."""
+  line = re.search(r"^jaxplore sweep .*$", (REPO / "docs" / "user-guide.md").read_text(), re.M).group(0)
   with pytest.raises(Scheduled):
     cli.main(shlex.split(line)[1:] + ["--no-progress", "--devices", "1"])
   made, group_runs = stop_at_compute[0]
@@ -544,10 +544,10 @@ def test_the_readme_sweep_command_schedules_without_an_error(stop_at_compute):
 
 
 def test_the_readme_toml_example_schedules_without_an_error(tmp_path, stop_at_compute):
-  """The README's TOML sweep, as a user would save it, goes through every check a sweep makes
+  """The user guide's TOML sweep, as a user would save it, goes through every check a sweep makes
   before compute (settings, worlds, planners' weights, memory) and is scheduled; the compute
   itself (2 worlds x 2 planners x 96 settings x 8 seeds) is left out."""
-  block = re.search(r"```toml\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
+  block = re.search(r"```toml\n(.*?)```", (REPO / "docs" / "user-guide.md").read_text(), re.S).group(1)
   (tmp_path / "sweep.toml").write_text(block)
   with pytest.raises(Scheduled):
     jaxplore.sweep(config="sweep.toml", progress=False, quiet=True, devices=1)

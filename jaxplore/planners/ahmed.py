@@ -69,30 +69,60 @@ from jaxplore.graph import labels
 from jaxplore.graph.dijkstra import extract_path
 from jaxplore.planners import base, godoy2023
 from jaxplore.planners.frontier import plan_to, reachable_paths
+from jaxplore.settings import declared, setting
 
-DEFAULTS = {
-    "lambda": 0.6,  # Eq 6 decay, per metre (per cell with gamma_cells = 1, as the authors' code)
-    "gamma_cells": 0.0,
-    "p_unknown": 0.1,  # Eq 4
-    "p_known": 0.45,
-    "halluc_spacing": 5.0,  # m of path per hallucinated node (100 path points of 0.05 m)
-    "even": 0.0,  # 0: random distinct path cells (the authors), 1: evenly spaced
-    "info_radius": 1.7,  # m, unknown / occupied fractions around a hallucinated node
-    "odom_var_xy": 0.04,  # ODOM_COV of the hallucinated odometry edges
-    "odom_cov_xy": 0.001,
-    "odom_var_theta": 0.008,
-    "halluc_loop_radius": 2.0,  # m
-    "halluc_loop_age": 20.0,  # keyframes
-    "halluc_overlap": 0.15,  # footprint overlap fraction
-    "halluc_structure": 0.03,  # occupied fraction that makes a loop closure possible
-    "lc_scale": 1.5,
-    "filter_radius": 1.0,  # m
-    "min_unknown_area": 0.45,  # m² of unknown cells within filter_radius
-    "min_robot_dist": 0.25,  # m
-}
-# AGS has no path entropy and no distance decay: it never reads their weights.
-AGS_DEFAULTS = {k: v for k, v in DEFAULTS.items()
-                if k not in ("lambda", "gamma_cells", "p_unknown", "p_known")}
+
+@dataclasses.dataclass(frozen=True)
+class AgsWeights:
+  """Traced weights of ``ags`` (``params.planner[name]``; sweeping them never recompiles):
+  ``ahmed``'s but Eq 4-6's (AGS has no path entropy and no distance decay)."""
+
+  # 100 path points of 0.05 m in the authors' code.
+  halluc_spacing: float = setting(5.0, "⌈path length / halluc_spacing⌉ hallucinated nodes along "
+                                  "the path to a candidate", unit="m", gt=0)
+  even: float = setting(0.0, "hallucinated nodes at 0: random distinct path cells (the "
+                        "authors), 1: evenly spaced", ge=0, le=1, integer=True)
+  info_radius: float = setting(1.7, "radius of the unknown / occupied fractions around a "
+                               "hallucinated node (<= Settings.disc_m)", unit="m", gt=0)
+  odom_var_xy: float = setting(0.04, "ODOM_COV of the hallucinated odometry edges: x and y "
+                               "variance", unit="m²", gt=0)
+  odom_cov_xy: float = setting(0.001, "ODOM_COV: x-y covariance (|odom_cov_xy| < odom_var_xy)",
+                               unit="m²")
+  odom_var_theta: float = setting(0.008, "ODOM_COV: heading variance", unit="rad²", gt=0)
+  halluc_loop_radius: float = setting(2.0, "a hallucinated node closes a loop only to a "
+                                      "keyframe within this distance", unit="m", gt=0)
+  halluc_loop_age: float = setting(20.0, "a hallucinated node closes a loop only to a "
+                                   "keyframe more than this many keyframes older",
+                                   unit="keyframes", ge=0)
+  halluc_overlap: float = setting(0.15, "a hallucinated node closes a loop only to a keyframe "
+                                  "whose sensor footprint overlaps its own by more than this",
+                                  ge=0, le=1)
+  halluc_structure: float = setting(0.03, "a hallucinated node closes a loop only when its "
+                                    "occupied fraction within info_radius exceeds this",
+                                    ge=0, le=1)
+  lc_scale: float = setting(1.5, "scale of a hallucinated loop's information (the authors' "
+                            "1.5·loop_diff·occupied)", ge=0)
+  filter_radius: float = setting(1.0, "candidates need min_unknown_area of unknown cells within "
+                                 "this radius (<= Settings.disc_m)", unit="m", gt=0)
+  min_unknown_area: float = setting(0.45, "unknown area within filter_radius a candidate needs",
+                                    unit="m²", ge=0)
+  min_robot_dist: float = setting(0.25, "candidates nearer the robot are dropped", unit="m",
+                                  ge=0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Weights(AgsWeights):
+  """Traced weights of ``ahmed``: AGS's and Eq 4-6's."""
+
+  lambda_: float = setting(0.6, "Eq 6: decay λ of γ = exp(−λ·dist) (per cell with "
+                           "gamma_cells = 1)", unit="1/m", ge=0, name="lambda")
+  gamma_cells: float = setting(0.0, "Eq 6's dist: 0 in metres, 1 in cells (the authors' code)",
+                               ge=0, le=1, integer=True)
+  p_unknown: float = setting(0.1, "Eq 4: p of an unknown cell of the path's line", gt=0, lt=1)
+  p_known: float = setting(0.45, "Eq 4: p of a known cell of the path's line", gt=0, lt=1)
+
+
+DEFAULTS = {name: s.default for name, s in declared(Weights).items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,35 +139,31 @@ class Settings:
     cluster_m: side (m) of the tiles that group frontier cells into candidates.
   """
 
-  max_candidates: int = 32
-  max_new_nodes: int = 8
-  halluc_path_cells: int = 1024
-  disc_m: float = 2.0
-  cluster_m: float = 1.5
+  max_candidates: int = setting(32, "frontier clusters scored (the fullest ones)", static=True,
+                                ge=1, integer=True)
+  max_new_nodes: int = setting(8, "hallucinated nodes per candidate, the one at the candidate "
+                               "included; longer paths get this many", static=True, ge=1,
+                               integer=True)
+  halluc_path_cells: int = setting(1024, "cells of the path to a candidate that hallucinated "
+                                   "nodes may sit on (the node at the candidate is always "
+                                   "placed)", static=True, ge=1, integer=True)
+  disc_m: float = setting(2.0, "the largest radius of the unknown / occupied counts around a "
+                          "point (info_radius, filter_radius)", unit="m", static=True, gt=0)
+  cluster_m: float = setting(1.5, "side of the square tiles that group frontier cells into "
+                             "candidates (the authors' MeanShift bandwidth)", unit="m",
+                             static=True, gt=0)
 
 
 def validate(weights, params, ctx):
-  """Host-side checks of the weights (probabilities, radii within the static disc)."""
+  """Host-side checks the declarations cannot make: the radii within the static disc, the
+  hallucinated odometry covariance positive definite."""
   settings = ctx.settings
-  base.require_at_least_one("ahmed", settings, ("max_candidates", "max_new_nodes",
-                                                "halluc_path_cells"))
   w = {k: np.asarray(v) for k, v in weights.items()}
-  for name in ("p_unknown", "p_known"):
-    bad = (w[name] <= 0) | (w[name] >= 1) if name in w else False
-    if np.any(bad):
-      raise ConfigError(f"ahmed: {name} must be in (0, 1), got {shown(w[name], bad)}")
-  for name in ("even", "gamma_cells"):
-    bad = ~np.isin(w[name], [0.0, 1.0]) if name in w else False
-    if np.any(bad):
-      raise ConfigError(f"ahmed: {name} must be 0 or 1, got {shown(w[name], bad)}")
   for name in ("info_radius", "filter_radius"):
-    bad = (w[name] <= 0) | (w[name] > settings.disc_m + 1e-6)
+    bad = w[name] > settings.disc_m + 1e-6
     if np.any(bad):
       raise ConfigError(f"ahmed: {name} must be in (0, {settings.disc_m}] m (Settings.disc_m), "
                         f"got {shown(w[name], bad)}")
-  for name in ("halluc_spacing", "halluc_loop_radius", "odom_var_xy", "odom_var_theta"):
-    if np.any(w[name] <= 0):
-      raise ConfigError(f"ahmed: {name} must be > 0, got {shown(w[name], w[name] <= 0)}")
   if np.any(w["odom_cov_xy"] ** 2 >= w["odom_var_xy"] ** 2):
     raise ConfigError("ahmed: the hallucinated odometry covariance must be positive definite "
                       f"(|odom_cov_xy| < odom_var_xy), got {shown(w['odom_cov_xy'])} and "
@@ -425,7 +451,7 @@ SUMMARY_AGS = ("Placed & Castellanos' AGS: frontier of largest U1 (hallucinated 
                "spanning trees)")
 
 
-@base.register("ahmed", defaults=DEFAULTS, summary=SUMMARY_AHMED, settings=Settings(),
+@base.register("ahmed", defaults=Weights, summary=SUMMARY_AHMED, settings=Settings(),
                validate=validate, needs_pose_graph=True, commits=True)
 def plan_ahmed(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Eq 9: ``U = U1 + (1 − E/K)·ρ + γ``, largest wins (see the module docstring)."""
@@ -433,7 +459,7 @@ def plan_ahmed(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -
                     with_entropy=True)
 
 
-@base.register("ags", defaults=AGS_DEFAULTS, summary=SUMMARY_AGS, settings=Settings(),
+@base.register("ags", defaults=AgsWeights, summary=SUMMARY_AGS, settings=Settings(),
                validate=validate, needs_pose_graph=True, commits=True)
 def plan_ags(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """AGS: ``U = U1`` (Eq 8), largest wins; ahmed's candidates and hallucination."""

@@ -140,6 +140,9 @@ class PlannerSpec:
     plan: the plan function (see the module docstring for its two signatures).
     defaults: traced weights, name -> default value (``params.planner[name]``; sweeping them
       never recompiles).
+    weights: their declarations (:class:`jaxplore.settings.Setting`, name -> declaration), where
+      the planner registered a weights dataclass: each weight's help and range, checked before
+      compute.
     summary: one line for listings.
     settings: the planner's static settings, a frozen dataclass instance holding their defaults
       (``ctx.settings``; a change recompiles; they may fix shapes), or None.
@@ -168,6 +171,7 @@ class PlannerSpec:
   name: str
   plan: PlanFn
   defaults: dict = dataclasses.field(default_factory=dict)
+  weights: dict = dataclasses.field(default_factory=dict)
   summary: str = ""
   settings: Any = None
   validate: Callable | None = None
@@ -220,14 +224,25 @@ class PlannerSpec:
                           f"got {value!r}")
       if kind is float and not math.isfinite(converted[name]):
         raise ConfigError(f"planner {self.name!r}: setting {name} must be finite, got {value!r}")
-    return dataclasses.replace(self.settings, **converted)
+    resolved = dataclasses.replace(self.settings, **converted)
+    check_settings(self.name, resolved)
+    return resolved
+
+  def check_weights(self, weights: dict) -> None:
+    """Refuses a weight (a scalar or one value per robot) outside its declared range, naming
+    it; undeclared weights need only be finite."""
+    for name, value in weights.items():
+      declaration = self.weights.get(name)
+      if declaration is not None:
+        declaration.check(value, f"planner {self.name!r}: weight {name}")
 
   def declared_settings(self) -> list[Setting]:
     """The planner's traced weights and static settings as :class:`jaxplore.settings.Setting`
     declarations (listings, documentation): a settings field declared with
     :func:`jaxplore.settings.setting` brings its help and range, the others their default."""
     owner = f"planner {self.name}"
-    out = [Setting(default=float(v), help="", owner=owner, name=k)
+    out = [dataclasses.replace(self.weights[k], owner=owner) if k in self.weights else
+           Setting(default=float(v), help="", owner=owner, name=k)
            for k, v in self.defaults.items()]
     if self.settings is not None:
       declared_fields = declared(type(self.settings))
@@ -256,6 +271,13 @@ class PlannerSpec:
     return traced, static
 
 
+def check_settings(planner: str, settings) -> None:
+  """Refuses a static setting of ``planner`` outside its declared range (the
+  :func:`jaxplore.settings.setting` fields of its settings dataclass), naming it."""
+  for name, declaration in declared(type(settings)).items():
+    declaration.check(getattr(settings, name), f"planner {planner!r}: setting {name}")
+
+
 def _as_bool(value) -> bool:
   if isinstance(value, str):
     if value.lower() in ("1", "true", "yes", "on"):
@@ -277,20 +299,35 @@ def _as_number(value) -> float:
 _REGISTRY: dict[str, PlannerSpec] = {}
 
 
-def register(name: str, defaults: dict | None = None, summary: str = "", *, settings=None,
+def register(name: str, defaults=None, summary: str = "", *, settings=None,
              validate: Callable | None = None, needs_entropy_map: bool = False,
              needs_pose_graph: bool = False, init_memory: Callable | None = None,
              commits: bool = False,
              step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
              windowed: bool = False, preset: str | None = None):
-  """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`)."""
+  """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`).
+
+  ``defaults``: the traced weights, a dict name -> default, or a dataclass whose fields declare
+  them (:func:`jaxplore.settings.setting`: default, help, range; the range is checked before
+  compute). ``settings``: the static settings, a frozen dataclass instance; its fields may be
+  declared the same way."""
   if settings is not None and not (dataclasses.is_dataclass(settings) and
                                    settings.__dataclass_params__.frozen):
     raise TypeError(f"planner {name!r}: settings must be a frozen dataclass instance")
+  weights = {}
+  if isinstance(defaults, type) and dataclasses.is_dataclass(defaults):
+    weights = declared(defaults)
+    if len(weights) != len(dataclasses.fields(defaults)):
+      raise TypeError(f"planner {name!r}: every field of its weights dataclass must be declared "
+                      f"with jaxplore.settings.setting")
+    defaults = {k: w.default for k, w in weights.items()}
+  if settings is not None:
+    check_settings(name, settings)
 
   def wrap(fn):
     _REGISTRY[name] = PlannerSpec(
-        name=name, plan=fn, defaults=dict(defaults or {}), summary=summary, settings=settings,
+        name=name, plan=fn, defaults=dict(defaults or {}), weights=weights, summary=summary,
+        settings=settings,
         validate=validate, needs_entropy_map=needs_entropy_map, needs_pose_graph=needs_pose_graph,
         init_memory=init_memory,
         commits=commits, step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival,

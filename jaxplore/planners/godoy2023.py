@@ -61,29 +61,59 @@ is the Dijkstra path cost to the goal (m); ``n_candidates`` the clusters with a 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxplore import mapping
-from jaxplore.errors import ConfigError, shown
 from jaxplore.graph import labels
 from jaxplore.planners import base
 from jaxplore.planners.frontier import plan_to, reachable_paths
+from jaxplore.settings import setting
 
 # Frontier clusters scored per planning round; smaller clusters beyond this many are ignored.
 MAX_CLUSTERS = 128
 
-# d_path = 0: d is the Euclidean distance (the paper); 1: the path cost (see the module docstring).
-# d_nearest = 1: the Euclidean d is measured to the cluster's nearest cell (the authors' code).
-# min_frontier_size: clusters shorter than this (m, cells x res) are no candidates (their code's
-# released value, 0.5 m; 0 keeps every cluster).
-FRT_DEFAULTS = {"C_d": 10.0, "C_i": 1.0, "d_path": 0.0, "d_nearest": 0.0, "min_frontier_size": 0.5}
-IG_DEFAULTS = {"C_d": 10.0, "C_i": 0.01, "k_f": 10.0, "D": 5.5, "d_path": 0.0, "d_nearest": 0.0,
-               "min_frontier_size": 0.5}
+# Help of the weights frt and ig share, none of them the paper's (see the module docstring).
+_D_PATH = "0: d is the Euclidean distance (the paper); 1: the Dijkstra path cost"
+_D_NEAREST = ("0: Euclidean d to the candidate (the paper); 1: to the cluster's cell nearest "
+              "the robot (the authors' code)")
+_MIN_FRONTIER_SIZE = ("clusters shorter than this (cells × res) are no candidates (the authors' "
+                      "code; 0 keeps every cluster)")
+
+
+@dataclasses.dataclass(frozen=True)
+class FrtWeights:
+  """Traced weights of ``frt`` (``params.planner[name]``; sweeping them never recompiles)."""
+
+  C_d: float = setting(10.0, "Eq 12: C_d, weight of the distance d (per metre)")
+  C_i: float = setting(1.0, "Eq 12: C_i, weight of the cluster's frontier cells A (scale by "
+                       "res / 0.05 at another resolution)")
+  d_path: float = setting(0.0, _D_PATH, ge=0, le=1, integer=True)
+  d_nearest: float = setting(0.0, _D_NEAREST, ge=0, le=1, integer=True)
+  min_frontier_size: float = setting(0.5, _MIN_FRONTIER_SIZE, unit="m", ge=0)
+
+
+@dataclasses.dataclass(frozen=True)
+class IgWeights:
+  """Traced weights of ``ig`` (``params.planner[name]``; sweeping them never recompiles)."""
+
+  C_d: float = setting(10.0, "Eq 3: C_d, weight of the distance d (per metre)")
+  C_i: float = setting(0.01, "Eq 3: C_i, weight of f·I, I in bits (scale by (res / 0.05)² at "
+                       "another resolution)")
+  k_f: float = setting(10.0, "Eq 5: k_f, obstacle weight of f = 1 − k_f·Occupied/Known")
+  D: float = setting(5.5, "Eq 4 and Algorithm 1: D, a cluster's neighbourhood radius "
+                     "(Manhattan)", unit="m", gt=0)
+  d_path: float = setting(0.0, _D_PATH, ge=0, le=1, integer=True)
+  d_nearest: float = setting(0.0, _D_NEAREST, ge=0, le=1, integer=True)
+  min_frontier_size: float = setting(0.5, _MIN_FRONTIER_SIZE, unit="m", ge=0)
+
+
+FRT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(FrtWeights)}
+IG_DEFAULTS = {f.name: f.default for f in dataclasses.fields(IgWeights)}
 
 
 class Candidates(NamedTuple):
@@ -105,28 +135,6 @@ class Candidates(NamedTuple):
   valid: jax.Array
   distance: jax.Array
   nearest: jax.Array
-
-
-def validate_frt(weights, params, config, name="frt"):
-  """Host-side check of the weights: ``d_path`` and ``d_nearest`` are 0 or 1,
-  ``min_frontier_size`` is not negative."""
-  d_path = np.asarray(weights["d_path"])
-  if np.any(~np.isin(d_path, [0.0, 1.0])):
-    raise ConfigError(f"{name}: d_path must be 0 (Euclidean d, the paper) or 1 (path cost), "
-                      f"got {shown(d_path, ~np.isin(d_path, [0.0, 1.0]))}")
-  if np.any(~np.isin(np.asarray(weights["d_nearest"]), [0.0, 1.0])):
-    raise ConfigError(f"{name}: d_nearest must be 0 (d to the candidate) or 1 (to the nearest frontier cell)")
-  if np.any(np.asarray(weights["min_frontier_size"]) < 0):
-    raise ConfigError(f"{name}: min_frontier_size must be >= 0 m")
-
-
-def validate_ig(weights, params, config):
-  """Host-side check of IG's weights: also Algorithm 1's radius D must be positive."""
-  validate_frt(weights, params, config, name="ig")
-  radius = np.asarray(weights["D"])
-  if np.any(radius <= 0):
-    raise ConfigError(f"ig: D (Algorithm 1's neighbourhood radius, m) must be > 0, "
-                      f"got {shown(radius, radius <= 0)}")
 
 
 def _weights(params, defaults: dict) -> dict:
@@ -268,7 +276,7 @@ def _paths(config, view, robot):
   return reachable_paths(config, view, robot, node_cost)
 
 
-@base.register("frt", defaults=FRT_DEFAULTS, validate=validate_frt,
+@base.register("frt", defaults=FrtWeights,
                summary="Godoy-Calvo Eq 12: frontier cluster of lowest C_d·d − C_i·size")
 def plan_frt(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Frontier utility, Godoy-Calvo Eq 12: ``U' = C_d·d − C_i·A``, lowest wins.
@@ -285,7 +293,7 @@ def plan_frt(config, view: base.BeliefView, robot: base.RobotView, params, key) 
   return _plan_lowest_cost(config, view, robot, dist, pred, candidates, cost)
 
 
-@base.register("ig", defaults=IG_DEFAULTS, validate=validate_ig,
+@base.register("ig", defaults=IgWeights,
                summary="Godoy-Calvo Eq 3: frontier cluster of lowest C_d·d − C_i·f·I (expected entropy)")
 def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Dynamic entropy frontiers, Godoy-Calvo Eq 3: ``U = C_d·d − C_i·f·I``, lowest wins.

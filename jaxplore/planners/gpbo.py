@@ -56,22 +56,35 @@ import math
 import chex
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxplore import gp, mapping, sensor, virtual_scan
-from jaxplore.errors import ConfigError, shown
 from jaxplore.graph import labels
 from jaxplore.planners import base
 from jaxplore.planners.frontier import plan_to, reachable_paths
+from jaxplore.settings import setting
 
-DEFAULTS = {
-    "learning_rate": 0.05,  # Adam's step size for the hyper-parameter fit
-    "delta": 0.01,  # δ of GP-UCB's β_t
-    "gain_kind": 0.0,  # 0 entropy drop (nats), 1 newly known area, 2 newly free area (m²)
-    "min_distance": 0.25,  # floor of the path distance MI is divided by, m
-    "robot_clearance": 0.25,  # candidates closer to the robot are dropped, m
-    "rescan_angle": math.pi / 3,  # turn in place when too few candidates, rad (the code: 60°)
-}
+
+@dataclasses.dataclass(frozen=True)
+class Weights:
+  """Traced weights of ``gpbo`` (``params.planner[name]``; sweeping them never recompiles)."""
+
+  learning_rate: float = setting(0.05, "Adam's step size for the GP hyper-parameter fit (step 5)",
+                                 gt=0)
+  delta: float = setting(0.01, "δ of GP-UCB's β_t = 2 ln(|D| t² π² / (6δ)) (step 6)", gt=0, lt=1)
+  gain_kind: float = setting(0.0, "MI of a virtual scan (step 4): 0 the entropy drop (nats), "
+                             "1 the newly known area, 2 the newly free area (m²)", ge=0, le=2,
+                             integer=True)
+  min_distance: float = setting(0.25, "floor of the path distance MI is divided by (step 4)",
+                                unit="m", gt=0)
+  robot_clearance: float = setting(0.25, "candidates closer to the robot are dropped (step 2)",
+                                   unit="m", ge=0)
+  rescan_angle: float = setting(math.pi / 3, "turn in place when too few candidates (step 3; "
+                                "the authors' code: 60°)", unit="rad", gt=0, lt=2 * math.pi)
+
+
+DEFAULTS = {f.name: f.default for f in dataclasses.fields(Weights)}
+
+MAX_BEAMS = 3600  # one per 0.1°: more resolve nothing a grid map holds, and cost memory
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,59 +102,35 @@ class Settings:
     fit_steps: Adam steps per hyper-parameter fit.
     min_valid: fewer valid candidates than this make the robot turn in place and rescan.
     rescan_turns: turns in place in a row, without enough candidates, that end the exploration.
-    n_beams: beams of a virtual scan.
+    n_beams: beams of a virtual scan (at most :data:`MAX_BEAMS`).
   """
 
-  n_yaws: int = 30
-  radius_min: float = 1.0
-  radius_step: float = 0.5
-  n_radii: int = 9
-  max_groups: int = 32
-  frontier_clearance: float = 0.3
-  n_train: int = 15
-  n_test: int = 1024
-  bo_iterations: int = 3
-  fit_steps: int = 100
-  min_valid: int = 4
-  rescan_turns: int = 6
-  n_beams: int = 190
-
-  def __post_init__(self):
-    for name in ("n_yaws", "n_radii", "max_groups", "n_train", "n_test", "fit_steps", "n_beams"):
-      if int(getattr(self, name)) < 1:
-        raise ConfigError(f"gpbo: {name} must be >= 1, got {getattr(self, name)}")
-    if self.bo_iterations < 0 or self.min_valid < 1 or self.rescan_turns < 0:
-      raise ConfigError("gpbo: bo_iterations and rescan_turns must be >= 0 and min_valid >= 1")
-    if self.radius_min <= 0 or self.radius_step < 0 or self.frontier_clearance < 0:
-      raise ConfigError("gpbo: radius_min must be > 0, radius_step and frontier_clearance >= 0")
-
-
-MAX_BEAMS = 3600  # one per 0.1°: more resolve nothing a grid map holds, and cost memory
-
-
-def validate(weights, params, ctx):
-  """Host-side check of the resolved weights and static settings."""
-  settings = ctx.settings
-  base.require_at_least_one("gpbo", settings, ("n_yaws", "n_radii", "max_groups", "n_train",
-                                               "n_test", "n_beams"))
-  if settings.n_beams > MAX_BEAMS:
-    raise ConfigError(f"gpbo: n_beams = {settings.n_beams} beams per virtual scan; at most "
-                      f"{MAX_BEAMS} (one per 0.1°)")
-  if np.any(~np.isin(np.asarray(weights["gain_kind"]), [0.0, 1.0, 2.0])):
-    raise ConfigError("gpbo: gain_kind must be 0 (entropy), 1 (known area) or 2 (free area)")
-  delta = np.asarray(weights["delta"])
-  bad = (delta <= 0) | (delta >= 1)
-  if np.any(bad):
-    raise ConfigError(f"gpbo: delta must be in (0, 1), got {shown(delta, bad)}")
-  for name in ("learning_rate", "min_distance"):
-    if np.any(np.asarray(weights[name]) <= 0):
-      raise ConfigError(f"gpbo: {name} must be > 0")
-  if np.any(np.asarray(weights["robot_clearance"]) < 0):
-    raise ConfigError("gpbo: robot_clearance must be >= 0")
-  angle = np.asarray(weights["rescan_angle"])
-  bad = ~np.isfinite(angle) | (angle <= 0) | (angle >= 2 * math.pi)
-  if np.any(bad):
-    raise ConfigError(f"gpbo: rescan_angle must be in (0, 2π) rad, got {shown(angle, bad)}")
+  n_yaws: int = setting(30, "headings per frontier group (step 2)", static=True, ge=1,
+                        integer=True)
+  radius_min: float = setting(1.0, "nearest candidate distance from a group's reference (step 2)",
+                              unit="m", static=True, gt=0)
+  radius_step: float = setting(0.5, "step between candidate distances (step 2)", unit="m",
+                               static=True, ge=0)
+  n_radii: int = setting(9, "candidate distances per heading (step 2)", static=True, ge=1,
+                         integer=True)
+  max_groups: int = setting(32, "frontier clusters that get candidates, the largest (step 1)",
+                            static=True, ge=1, integer=True)
+  frontier_clearance: float = setting(0.3, "candidates this close to a frontier cell are dropped "
+                                      "(step 2)", unit="m", static=True, ge=0)
+  n_train: int = setting(15, "candidates evaluated before the GP is fitted (step 3)",
+                         static=True, ge=1, integer=True)
+  n_test: int = setting(1024, "capacity of the test set the acquisition is maximised over "
+                        "(step 3)", static=True, ge=1, integer=True)
+  bo_iterations: int = setting(3, "Bayesian-optimisation rounds, one virtual scan each (step 6)",
+                               static=True, ge=0, integer=True)
+  fit_steps: int = setting(100, "Adam steps per hyper-parameter fit (step 5)", static=True, ge=1,
+                           integer=True)
+  min_valid: int = setting(4, "fewer valid candidates make the robot turn in place (step 3)",
+                           static=True, ge=1, integer=True)
+  rescan_turns: int = setting(6, "turns in place in a row, without enough candidates, that end "
+                              "the exploration (step 3)", static=True, ge=0, integer=True)
+  n_beams: int = setting(190, "beams of a virtual scan (step 4; at most one per 0.1°)",
+                         static=True, ge=1, le=MAX_BEAMS, integer=True)
 
 
 @chex.dataclass(frozen=True)
@@ -220,7 +209,7 @@ def candidate_poses(reference, settings: Settings, res: float):
   return cells, yaws, group
 
 
-@base.register("gpbo", defaults=DEFAULTS, settings=Settings(), validate=validate,
+@base.register("gpbo", defaults=Weights, settings=Settings(),
                init_memory=init_memory, commits=True,
                summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, GP-UCB (Li's Method 29)")
 def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, memory):

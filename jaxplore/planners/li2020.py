@@ -64,21 +64,31 @@ from jaxplore.errors import ConfigError, shown
 from jaxplore.graph.dijkstra import extract_path, shortest_paths
 from jaxplore.graph.tree import nearest_ancestor, path_sums
 from jaxplore.planners import base
+from jaxplore.settings import setting
 
-DEFAULTS = {
-    "k1": 0.2,  # weight of edges into entropy boundaries B_e (Eq 8)
-    "k2": 0.6,  # weight of edges into grid-map boundaries B_g (Eq 8)
-    "tau_e": 0.6,  # entropy threshold of B_e, nats
-    # det Σ_max of Eq 19 (m²·m²·rad²): this project's choice, not Li's (see the note below).
-    "det_sigma_max": 1e2,
-    "select": 0.0,  # 0: max gain; 1: max gain per metre
-    "e_min": 0.0,  # stop when the average observable entropy falls below this (0: never)
-    "h0": math.log(2.0),  # H_0 of the re-explore metric, Eq 22
-    # Progress timeout (not Li's; explore_lite's progress_timeout): a robot that has driven this
-    # far (m, straight lines between its plans) without one more cell of its belief becoming
-    # known ends its episode as exhausted (memory "stuck"). 0 disables it.
-    "progress_m": 20.0,
-}
+@dataclasses.dataclass(frozen=True)
+class Weights:
+  """Traced weights of ``li2020`` (``params.planner[name]``; sweeping them never recompiles)."""
+
+  k1: float = setting(0.2, "Eq 8: weight of edges into entropy boundaries B_e (k1 < k2)", ge=0,
+                      lt=1)
+  k2: float = setting(0.6, "Eq 8: weight of edges into grid-map boundaries B_g", gt=0, lt=1)
+  tau_e: float = setting(0.6, "Eq 4: entropy threshold of the entropy boundaries B_e",
+                         unit="nats", ge=0)
+  det_sigma_max: float = setting(1e2, "Eq 19: det Σ_max, a path is cut where det Σ exceeds it "
+                                 "(this project's value, not Li's)", unit="m²·m²·rad²", gt=0)
+  select: float = setting(0.0, "0: the candidate of largest gain; 1: of largest gain per metre",
+                          ge=0, le=1, integer=True)
+  e_min: float = setting(0.0, "stop when the average observable entropy falls below this "
+                         "(0: never)", unit="nats", ge=0)
+  h0: float = setting(math.log(2.0), "Eq 22: H_0 of the re-explore metric", unit="nats", ge=0)
+  # Not Li's: explore_lite's progress_timeout.
+  progress_m: float = setting(20.0, "a robot that drives this far (straight lines between its "
+                              "plans) without one more cell becoming known ends exhausted "
+                              "(0: never)", unit="m", ge=0)
+
+
+DEFAULTS = {f.name: f.default for f in dataclasses.fields(Weights)}
 
 # Disc offsets per loop step of visible_gains, by execution strategy
 # (experiments/bench_visible_blocks.py: lab-sized 130 x 170 grid, R_e 57 cells, robots vmapped).
@@ -122,17 +132,14 @@ class Settings:
       offset (π R_e²).
   """
 
-  eq21: str = "sensor"
-  road_mark_m: float = 0.5
-  region: str = "visible"
-
-  def __post_init__(self):
-    if self.region not in ("visible", "disc"):
-      raise ConfigError(f"li2020: region must be 'visible' or 'disc', got {self.region!r}")
-    if self.eq21 not in ("sensor", "cell"):
-      raise ConfigError(f"li2020: eq21 must be 'sensor' or 'cell', got {self.eq21!r}")
-    if not self.road_mark_m >= 0:
-      raise ConfigError(f"li2020: road_mark_m must be >= 0, got {self.road_mark_m!r}")
+  eq21: str = setting("sensor", "Eq 21's reading of H'(c), the entropy of a cell once observed: "
+                      "sensor (one observation's) or cell (its belief's now)", static=True,
+                      choices=("sensor", "cell"))
+  road_mark_m: float = setting(0.5, "spacing of the road-mark points of Eq 16 along a path",
+                               unit="m", static=True, ge=0)
+  region: str = setting("visible", "Region(p_i) of Eq 20 and 22: the cells within R_e a scan "
+                        "could see (visible) or the whole disc", static=True,
+                        choices=("visible", "disc"))
 
 
 def init_memory(ctx, params):
@@ -151,12 +158,6 @@ def validate(weights, params, ctx):
   if np.any(bad):
     pairs = [f"({a:g}, {b:g})" for a, b in zip(k1[bad].tolist(), k2[bad].tolist())]
     raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got (k1, k2) = {shown(pairs)}")
-  if np.any(np.asarray(weights["progress_m"]) < 0):
-    raise ConfigError("li2020: progress_m must be >= 0 (0 disables the progress timeout)")
-  if np.any(np.asarray(weights["det_sigma_max"]) <= 0):
-    raise ConfigError("li2020: det_sigma_max must be > 0")
-  if np.any(~np.isin(np.asarray(weights["select"]), [0.0, 1.0])):
-    raise ConfigError("li2020: select must be 0 (max gain) or 1 (max gain per metre)")
 
 
 def boundaries(view: base.BeliefView, tau_e):
@@ -670,7 +671,7 @@ def average_observable_entropy(view: base.BeliefView, radius: float):
   return jnp.sum(jnp.where(observable, entropy, 0.0)) / jnp.maximum(jnp.sum(observable), 1)
 
 
-@base.register("li2020", defaults=DEFAULTS, settings=Settings(), validate=validate,
+@base.register("li2020", defaults=Weights, settings=Settings(), validate=validate,
                needs_entropy_map=True, init_memory=init_memory, commits=True,
                summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")
 def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key, memory):

@@ -97,6 +97,7 @@ from jaxplore.graph import node_graph
 from jaxplore.planners import base
 from jaxplore.planners import reg_kernels as K
 from jaxplore.planners.frontier import plan_to, reachable_paths
+from jaxplore.settings import setting
 
 START, EXPLORE, TRAVEL, DONE = 0, 1, 2, 3
 MODES = {START: "start", EXPLORE: "explore", TRAVEL: "travel", DONE: "done"}
@@ -104,16 +105,29 @@ MODES = {START: "start", EXPLORE: "explore", TRAVEL: "travel", DONE: "done"}
 # DISPLACE's fallbacks: fractions of the step r·ρ(φ*) tried in turn.
 STEP_SCALES = (1.0, 0.75, 0.5, 0.25)
 
-DEFAULTS = {
-    "R": 4.0,  # LSR radius, m (the sensor range)
-    "r": 0.5,  # step fraction of the LSR radius, r < 1
-    "d_min": 1.0,  # SRT: least distance of a new node from every node, m
-    "I_max": 30.0,  # SRT: draws per decision
-    "d_sep": 0.5,  # REG, SRG: least distance of a new node from every node but the current, m
-    "arrive_tol": 0.3,  # distance at which a destination counts as reached, m
-    "retries": 3.0,  # times a robot is sent again to a destination it did not reach
-    "shadow_jump": 0.5,  # with shadow_arcs: the least depth jump between bins that is a shadow, m
-}
+@dataclasses.dataclass(frozen=True)
+class Weights:
+  """Traced weights of the REG family (``params.planner[name]``; sweeping them never recompiles)."""
+
+  R: float = setting(4.0, "the LSR radius R (Toriz & Sánchez: the sensor range), <= the setting "
+                     "max_radius", unit="m", gt=0)
+  r: float = setting(0.5, "DISPLACE's step r·ρ(φ*) as a fraction of the LSR radius (r < 1)",
+                     gt=0, lt=1)
+  d_min: float = setting(1.0, "SRT: the least distance of a new node from every node", unit="m",
+                         ge=0)
+  I_max: float = setting(30.0, "SRT: the most direction draws per decision (<= the setting "
+                         "max_draws)", ge=1)
+  d_sep: float = setting(0.5, "REG, SRG: the least distance of a new node from every node but "
+                         "the current", unit="m", ge=0)
+  arrive_tol: float = setting(0.3, "the distance at which a destination counts as reached (a "
+                              "shorter step is a turn in place)", unit="m", ge=0)
+  retries: float = setting(3.0, "times a robot is sent again to a destination it did not reach",
+                           ge=0)
+  shadow_jump: float = setting(0.5, "with shadow_arcs: the least depth jump between bins that "
+                               "is a sensor shadow", unit="m", ge=0)
+
+
+DEFAULTS = {f.name: f.default for f in dataclasses.fields(Weights)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,14 +153,24 @@ class Settings:
       door sees no arc into the space behind it).
   """
 
-  nodes: int = 256
-  bins: int = 120
-  max_radius: float = 4.0
-  belief_arcs: bool = True
-  arc_reach: float = 0.5
-  widest_first: bool = False
-  max_draws: int = 64
-  shadow_arcs: bool = True
+  nodes: int = setting(256, "node capacity N of the exploration graph", static=True, ge=2,
+                       integer=True)
+  bins: int = setting(120, "angular bins B of an LSR (3° at 120)", static=True, ge=8,
+                      integer=True)
+  max_radius: float = setting(4.0, "the largest LSR radius R allowed (it bounds the rays cast)",
+                              unit="m", static=True, gt=0)
+  belief_arcs: bool = setting(True, "arcs are also closed by the belief (true), or by the LSRs "
+                              "alone as in the paper (false)", static=True, boolean=True)
+  arc_reach: float = setting(0.5, "with belief_arcs: a free bin stays open while a frontier cell "
+                             "lies within this of the end of its ray", unit="m", static=True,
+                             ge=0)
+  widest_first: bool = setting(False, "Extended REG's ranking of arcs (Fig 3): smallest turn "
+                               "from the heading first (false), or widest arc first (true)",
+                               static=True, boolean=True)
+  max_draws: int = setting(64, "static bound on SRT's I_max", static=True, ge=1, integer=True)
+  shadow_arcs: bool = setting(True, "an obstacle bin past a depth jump of more than "
+                              "shadow_jump (a sensor shadow) is a free bin", static=True,
+                              boolean=True)
 
 
 @chex.dataclass(frozen=True)
@@ -210,23 +234,14 @@ def validate(weights, params, ctx) -> None:
   s = ctx.settings
   if not isinstance(s, Settings):
     raise ConfigError(f"REG planners need their Settings, got {s!r}")
-  if s.nodes < 2 or s.bins < 8 or s.max_draws < 1 or not s.max_radius > 0 or not s.arc_reach >= 0:
-    raise ConfigError(f"REG settings: nodes >= 2, bins >= 8, max_draws >= 1, max_radius > 0 and "
-                      f"arc_reach >= 0 (got nodes={s.nodes}, bins={s.bins}, "
-                      f"max_draws={s.max_draws}, max_radius={s.max_radius}, "
-                      f"arc_reach={s.arc_reach})")
   w = {k: np.asarray(weights.get(k, v), np.float64) for k, v in DEFAULTS.items()}
+  # The single-value ranges are declared (Weights, Settings) and checked by the engine; these
+  # relate a weight to a setting.
   checks = [  # (name, where it is fine, what it must be)
-      ("R", w["R"] > 0, "> 0"),
       ("R", w["R"] <= s.max_radius + 1e-6,
        f"<= the setting max_radius = {s.max_radius} m (raise it)"),
-      ("r", (w["r"] > 0) & (w["r"] < 1), "in (0, 1)"),
-      ("d_min", w["d_min"] >= 0, ">= 0"),
-      ("I_max", (w["I_max"] >= 1) & (w["I_max"] <= s.max_draws),
-       f"in [1, max_draws = {s.max_draws}] (raise the setting max_draws)"),
-      ("arrive_tol", w["arrive_tol"] >= 0, ">= 0"),
-      ("retries", w["retries"] >= 0, ">= 0"),
-      ("shadow_jump", w["shadow_jump"] >= 0, ">= 0"),
+      ("I_max", w["I_max"] <= s.max_draws,
+       f"<= the setting max_draws = {s.max_draws} (raise it)"),
   ]
   for name, ok, what in checks:
     if not np.all(ok):
@@ -638,7 +653,7 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
 
 SETTINGS = Settings()
 # Their LSR radius R is the sensor's range: Toriz & Sánchez's 4 m lidar is theirs.
-_COMMON = dict(defaults=DEFAULTS, settings=SETTINGS, validate=validate, init_memory=init_memory,
+_COMMON = dict(defaults=Weights, settings=SETTINGS, validate=validate, init_memory=init_memory,
                commits=True, preset="toriz")
 
 

@@ -298,3 +298,23 @@ def test_candidates_filters_and_eq_9_from_their_parts():
                  for i, j in cells])
     rho = 10.0 ** (math.floor(math.log10(u1[k])) + 1 if u1[k] >= 1 else 1)
     np.testing.assert_allclose(utility[k], u1[k] + (1 - e) * rho + math.exp(-0.6 * dist), rtol=1e-5)
+
+
+@pytest.mark.parametrize("planner, params, says", [
+    ("ahmed", {"p_known": 1.0}, "planner 'ahmed': weight p_known must be in (0, 1), got 1"),
+    ("ahmed", {"lambda": -0.5}, "planner 'ahmed': weight lambda must be >= 0, got -0.5"),
+    ("ags", {"even": 0.5}, "planner 'ags': weight even must be"),
+    ("ags", {"halluc_spacing": 0.0}, "planner 'ags': weight halluc_spacing must be > 0, got 0"),
+    ("ahmed", {"max_new_nodes": 0}, "planner 'ahmed': setting max_new_nodes must be"),
+    ("ags", {"cluster_m": -1.0}, "planner 'ags': setting cluster_m must be > 0, got -1"),
+    ("ahmed", {"filter_radius": 2.5}, "ahmed: filter_radius must be in (0, 2.0] m"),
+    ("ags", {"odom_cov_xy": 0.05}, "(|odom_cov_xy| < odom_var_xy), got 0.05 and 0.04")])
+def test_a_weight_or_setting_out_of_range_is_refused_on_resolving(planner, params, says):
+  """The declared ranges (Weights, AgsWeights, Settings) and the checks left to validate (the
+  radii against Settings.disc_m, the covariance) refuse a bad value by name before compute."""
+  from jaxplore.errors import ConfigError
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+  with pytest.raises(ConfigError) as refused:
+    resolve(RunSpec.create(world="lab", planner=planner, robots=1, params=params))
+  assert says in str(refused.value)

@@ -378,7 +378,10 @@ def test_changing_weights_does_not_recompile():
 
 
 @pytest.mark.parametrize("planner, weights, match", [
-    ("ig", {"D": 0.0}, "D"), ("ig", {"d_path": 0.5}, "d_path"), ("frt", {"d_path": 2.0}, "d_path")])
+    ("ig", {"D": 0.0}, "weight D must be > 0"), ("ig", {"d_path": 0.5}, "weight d_path must be"),
+    ("frt", {"d_path": 2.0}, "weight d_path must be"),
+    ("frt", {"d_nearest": -1.0}, "weight d_nearest must be"),
+    ("ig", {"min_frontier_size": -0.5}, "weight min_frontier_size must be >= 0")])
 def test_bad_weights_are_refused_before_compute(planner, weights, match):
   from jaxplore.config import ConfigError
   from jaxplore.runner import prepare

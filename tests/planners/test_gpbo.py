@@ -223,3 +223,24 @@ def test_a_plan_with_enough_candidates_resets_the_turn_count():
   memory = gpbo.init_memory(CTX, PARAMS).replace(turns=jnp.int32(3))
   plan, new_memory = PLAN(make_view(belief()), robot_at((30, 5)), PARAMS, jax.random.key(0), memory)
   assert bool(plan.valid) and int(plan.length) > 1 and int(new_memory.turns) == 0
+
+
+@pytest.mark.parametrize("weights, says", [
+    ({"delta": 1.0}, "weight delta must be"), ({"learning_rate": 0.0}, "weight learning_rate"),
+    ({"gain_kind": 1.5}, "weight gain_kind must be"),
+    ({"rescan_angle": 2 * math.pi}, "weight rescan_angle must be")])
+def test_a_weight_outside_its_declared_range_is_refused_before_compute(weights, says):
+  from jaxplore.config import ConfigError
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+  with pytest.raises(ConfigError, match=f"planner 'gpbo': {says}"):
+    resolve(RunSpec.create(world="lab", planner="gpbo", robots=1, params=weights))
+
+
+@pytest.mark.parametrize("setting", [{"n_yaws": 0}, {"radius_min": 0.0}, {"bo_iterations": -1},
+                                     {"n_beams": gpbo.MAX_BEAMS + 1}])
+def test_a_static_setting_outside_its_declared_range_is_refused_naming_it(setting):
+  from jaxplore.config import ConfigError
+  (name,) = setting
+  with pytest.raises(ConfigError, match=f"planner 'gpbo': setting {name} must be"):
+    base.get_planner("gpbo").resolve_settings(setting)

@@ -192,11 +192,28 @@ def test_srt_draws_differ_across_keys_repeat_per_key_and_respect_d_min():
 
 
 def test_validate_names_the_numbers():
+  """validate keeps the checks relating a weight to a setting; the declared range of a single
+  weight is the engine's check (check_weights)."""
   spec = base.get_planner("ereg")
   ctx = base.PlannerContext(height=10, width=10, res=0.1, settings=spec.settings)
   with pytest.raises(ConfigError, match="max_radius = 4.0"):
     spec.validate({"R": np.float32(5.0)}, None, ctx)
-  with pytest.raises(ConfigError, match=r"r must be in \(0, 1\)"):
-    spec.validate({"r": np.float32(1.0)}, None, ctx)
+  with pytest.raises(ConfigError, match=r"weight r must be in \(0, 1\)"):
+    spec.check_weights({"r": np.float32(1.0)})
   with pytest.raises(ConfigError, match="max_draws = 64"):
     spec.validate({"I_max": np.float32(100.0)}, None, ctx)
+
+
+@pytest.mark.parametrize("planner_params, message", [
+    ({"r": 1.5}, r"planner 'ereg': weight r must be in \(0, 1\), got 1.5"),
+    ({"I_max": 0.0}, r"planner 'ereg': weight I_max must be >= 1, got 0"),
+    ({"d_sep": -0.5}, r"planner 'ereg': weight d_sep must be >= 0, got -0.5"),
+    ({"bins": 4}, r"planner 'ereg': setting bins must be .*>= 8, got 4"),
+    ({"arc_reach": -1.0}, r"planner 'ereg': setting arc_reach must be >= 0, got -1"),
+])
+def test_resolve_refuses_a_value_outside_its_declared_range(planner_params, message):
+  """The declared ranges of the weights and settings are checked when a run is resolved, before
+  any compute, naming the value."""
+  with pytest.raises(ConfigError, match=message):
+    runner.prepare(world="open", res=0.5, planner="ereg", robots=1,
+                   planner_params=planner_params)
