@@ -84,7 +84,8 @@ def parse_robots(robots, n_robots: int) -> tuple[int, ...]:
     try:
       robots = [int(r) for r in robots.split(",") if r.strip()]
     except ValueError:
-      raise ConfigError(f"robots must be comma-separated integers like 0,1,2, got {robots!r}") from None
+      raise ConfigError(
+          f"robots must be comma-separated integers like 0,1,2, got {robots!r}") from None
   robots = tuple(int(r) for r in robots)
   if not robots:
     raise ConfigError("choose at least one robot to animate")
@@ -194,8 +195,8 @@ def _sweep_setup(run_dir: Path, robots) -> _Setup:
   return _Setup(robots, resolved, resolved.batch([where[r][1] for r in robots]))
 
 
-def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, progress: bool = True,
-               check: bool = True) -> Replay:
+def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES,
+               progress: bool = True, check: bool = True) -> Replay:
   """Re-runs the chosen robots of a saved run and snapshots them at planning rounds.
 
   Args:
@@ -269,7 +270,8 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES, p
   bar = None
   if progress:
     from tqdm.auto import tqdm
-    bar = tqdm(total=n_epochs * per_epoch, unit="step", desc=f"replaying robots {','.join(map(str, robots))}")
+    bar = tqdm(total=n_epochs * per_epoch, unit="step",
+               desc=f"replaying robots {','.join(map(str, robots))}")
   try:
     for k in range(1, n_epochs + 1):
       state, rec = sim.advance(sim_config, world, params, state, n_epochs=1)
@@ -333,11 +335,11 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
   fig, axes = plt.subplots(nrows, ncols, figsize=(panel_w * ncols, panel_h * nrows), squeeze=False)
   colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
   artists = []
-  for j, r in enumerate(robots):
+  for j, _r in enumerate(robots):
     ax = axes[j // ncols][j % ncols]
     colour = colours[j % len(colours)]
-    image = ax.imshow(plot.belief_rgb(replay.occupied, replay.frames[0]["logodds"][j]), origin="lower",
-                      extent=extent, interpolation="nearest")
+    image = ax.imshow(plot.belief_rgb(replay.occupied, replay.frames[0]["logodds"][j]),
+                      origin="lower", extent=extent, interpolation="nearest")
     trail, = ax.plot([], [], lw=1.2, color=colour, label="trajectory")
     path, = ax.plot([], [], lw=1.0, ls="--", color="tab:red", label="planned path")
     goal, = ax.plot([], [], "x", ms=7, mew=2, color="tab:red", label="goal")
@@ -370,7 +372,8 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
       pose = frame["pose"][j]
       robot.set_data([pose[0]], [pose[1]])
       if frame["planned"][j]:
-        px, py = _cells_to_xy(frame["waypoints"][j][: int(frame["path_len"][j])], replay.res, replay.origin)
+        px, py = _cells_to_xy(frame["waypoints"][j][: int(frame["path_len"][j])], replay.res,
+                              replay.origin)
         path.set_data(np.concatenate([[pose[0]], px]), np.concatenate([[pose[1]], py]))
         gx, gy = _cells_to_xy(frame["goal"][j], replay.res, replay.origin)
         goal.set_data([gx], [gy])
@@ -430,7 +433,8 @@ def _writer_name(out: Path) -> str:
   return name
 
 
-def animate(run_dir, robots=(0,), out=None, every=None, fps: float = 8.0, progress: bool = True) -> Path:
+def animate(run_dir, robots=(0,), out=None, every=None, fps: float = 8.0,
+            progress: bool = True) -> Path:
   """Writes an animation of robots of a saved run and returns its path.
 
   Args:
@@ -449,7 +453,8 @@ def animate(run_dir, robots=(0,), out=None, every=None, fps: float = 8.0, progre
   if out is not None:
     _writer_name(Path(out))  # refuse a bad file name before the replay
   # and a place it cannot be written (the replay takes seconds to minutes)
-  check_writable(run_dir if out is None else out, "the animation's folder" if out is None else "--out")
+  check_writable(run_dir if out is None else out,
+                 "the animation's folder" if out is None else "--out")
   if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
     raise ConfigError(f"fps must be a positive number, got {fps!r}")
   replay = resimulate(run_dir, robots, every=every, progress=progress)

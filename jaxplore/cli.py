@@ -224,7 +224,8 @@ def _speed(timing: dict) -> str:
 
 
 def _sweep(args, extra) -> int:
-  """``jaxplore sweep``: flags -> :func:`jaxplore.sweeps.sweep` (None = from --config or default)."""
+  """``jaxplore sweep``: flags -> :func:`jaxplore.sweeps.sweep` (None = from --config or
+  default)."""
   from jaxplore import sweeps
   from jaxplore.config import ConfigError
   from jaxplore.runspec import RunSpec
@@ -262,9 +263,9 @@ def _sweep(args, extra) -> int:
   if code:
     return code
   t = result.timing
-  print(f"{t['robot_episodes']} robot-episodes ({t['chunks_run']} of {t['chunks']} chunks run here, "
-        f"{t['chunks_skipped']} already done); compile {t['compile_s']:.1f} s ({t['compiles']} "
-        f"compile(s)), run {t['run_s']:.1f} s")
+  print(f"{t['robot_episodes']} robot-episodes ({t['chunks_run']} of {t['chunks']} chunks "
+        f"run here, {t['chunks_skipped']} already done); compile {t['compile_s']:.1f} s "
+        f"({t['compiles']} compile(s)), run {t['run_s']:.1f} s")
   if result.out is not None:
     print(f"results in {result.out}")
   return 0
@@ -350,9 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
   sw = sub.add_parser(
       "sweep", help="worlds x planners x parameter settings x seeds, in resumable chunks",
       description="Every combination of --grid values (and --samples random points of the --random "
-      "ranges) x seeds, for every world and planner. Runs in chunks of equal shape (one compile per "
-      "world and planner); with --out every finished chunk is saved, and --resume DIR finishes an "
-      "interrupted sweep. Flags given here win over the --config file.")
+      "ranges) x seeds, for every world and planner. Runs in chunks of equal shape (one compile "
+      "per world and planner); with --out every finished chunk is saved, and --resume DIR "
+      "finishes an interrupted sweep. Flags given here win over the --config file.")
   sw.add_argument("--config", default=None, metavar="TOML", help="sweep settings from a TOML file")
   sw.add_argument("--resume", default=None, metavar="DIR",
                   help="finish the interrupted sweep in DIR (every setting comes from its "
@@ -367,8 +368,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "(words for a planner's word-valued setting: region=visible,disc)")
   sw.add_argument("--random", nargs="+", default=None, metavar="NAME=LOW:HIGH[:log]",
                   help="random search ranges (uniform, or log-uniform with :log)")
-  sw.add_argument("--samples", type=int, default=None, help="random points drawn from the --random ranges")
-  sw.add_argument("--random-seed", type=int, default=None, help="seed of the random points (default 0)")
+  sw.add_argument("--samples", type=int, default=None,
+                  help="random points drawn from the --random ranges")
+  sw.add_argument("--random-seed", type=int, default=None,
+                  help="seed of the random points (default 0)")
   sw.add_argument("--seeds", type=int, default=None, help="seeds per setting (default 8)")
   sw.add_argument("--chunk-size", type=int, default=None,
                   help="robot-episodes per chunk (default: at most 256, as many as fit in memory)")
@@ -406,7 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
   anim.add_argument("--every", type=int, default=None,
                     help="steps between frames, rounded up to whole planning rounds "
                     "(default: at most 150 frames)")
-  anim.add_argument("--out", default=None, help="FILE.gif or FILE.mp4 (default: RUN_DIR/animation_<robots>.gif)")
+  anim.add_argument("--out", default=None,
+                    help="FILE.gif or FILE.mp4 (default: RUN_DIR/animation_<robots>.gif)")
   anim.add_argument("--fps", type=float, default=8.0)
   anim.add_argument("--no-progress", action="store_true")
   return parser
@@ -449,8 +453,8 @@ def main(argv=None) -> int:
           f"{'reachable m²':>12}  description")
     for r in rows:
       print(f"{r['name']:<11} {r['width_cells']:>5} x {r['height_cells']:<4} {r['res']:>5.2g} "
-            f"{r['width_m']:>5.1f} x {r['height_m']:<5.1f} {r['free_m2']:>8.0f} {r['reachable_m2']:>12.0f}"
-            f"  {r['description']}")
+            f"{r['width_m']:>5.1f} x {r['height_m']:<5.1f} {r['free_m2']:>8.0f} "
+            f"{r['reachable_m2']:>12.0f}  {r['description']}")
     return 0
   if args.command == "animate":
     from jaxplore.animate import animate

@@ -23,9 +23,6 @@ from jaxplore import posegraph
 from jaxplore.errors import ConfigError, shown
 from jaxplore.settings import declared, setting
 
-
-
-
 # The SLAM models (SimConfig.slam; jaxplore.slam.model).
 SLAM_MODELS = ("oracle", "scan_matching")
 # Each SLAM model's default SimConfig.map_hole_cells: a SLAM map has holes of a few cells where
@@ -385,7 +382,8 @@ def _as_float(params: Params) -> dict[str, float]:
 
 
 def validate_params(params: Params, config: SimConfig) -> None:
-  """Raises :class:`ConfigError` naming the first NaN or out-of-range value (host side, before compute).
+  """Raises :class:`ConfigError` naming the first NaN or out-of-range value (host side, before
+  compute).
 
   Works on scalar or batched leaves (every element is checked).
   """
@@ -485,7 +483,8 @@ def effective_radius(res: float, fov: float, n_beams: int, dpi_min: float | None
     dpi_min: Eq 6's minimum density, beams per metre.
   """
   if n_beams < 2 or not fov > 0:
-    raise ConfigError(f"R_e needs at least 2 beams over a positive field of view, got {n_beams}, {fov}")
+    raise ConfigError(f"R_e needs at least 2 beams over a positive field of view, got {n_beams}, "
+                      f"{fov}")
   step = fov / n_beams if fov >= 2 * math.pi - 1e-6 else fov / (n_beams - 1)
   spacing = res if dpi_min is None else 1.0 / dpi_min
   if not spacing > 0:
@@ -515,13 +514,14 @@ def check_length(name: str, value, limit: float, sizes: str, length: str | None 
                       f"longer ({limit:.4g} m here): beyond the map it reaches no more cells")
 
 
-def config_for(world_shape: tuple[int, int], res: float, params: Params, *, preset: str | None = None,
-               **overrides) -> SimConfig:
+def config_for(world_shape: tuple[int, int], res: float, params: Params, *,
+               preset: str | None = None, **overrides) -> SimConfig:
   """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``.
 
   With a ``preset`` and no ``r_e`` among the overrides, R_e is derived from the lidar by Eq 5-6
   (:func:`effective_radius`, one beam per cell unless ``dpi_min`` is given; the widest ``fov``
-  of ``params``), at most the lidar's range ``r_max``; without a preset it is ``SimConfig.r_e``'s default unless given.
+  of ``params``), at most the lidar's range ``r_max``; without a preset it is ``SimConfig.r_e``'s
+  default unless given.
   """
   dpi_min = overrides.get("dpi_min") or None  # 0: one beam per cell
   limit = max(math.hypot(*world_shape) * res, LENGTH_LIMIT_M)

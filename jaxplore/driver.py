@@ -15,7 +15,7 @@ import functools
 import math
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import numpy as np
@@ -62,7 +62,8 @@ def compiled_advance(config: SimConfig, n_epochs: int, n_devices: int):
   fn = functools.partial(sim.advance_unjitted, config, n_epochs=n_epochs)
   if n_devices <= 1:
     return jax.jit(fn)
-  from jax.sharding import Mesh, PartitionSpec as P
+  from jax.sharding import Mesh
+  from jax.sharding import PartitionSpec as P
   mesh = Mesh(np.array(jax.local_devices()[:n_devices]), ("robots",))
   sharded = jax.shard_map(fn, mesh=mesh, in_specs=(P(), P("robots"), P("robots")),
                           out_specs=(P("robots"), P(None, "robots")), check_vma=False)

@@ -115,7 +115,8 @@ def neg_log_marginal_likelihood(raw, x, y, mask, wrap_yaw: bool = True):
   chol = _train_factor(raw, x, mask, wrap_yaw)
   z = linalg.solve_triangular(chol, y, lower=True)
   n = jnp.sum(mask).astype(jnp.float32)
-  return 0.5 * jnp.dot(z, z) + jnp.sum(jnp.log(jnp.diagonal(chol))) + 0.5 * n * math.log(2 * math.pi)
+  return (0.5 * jnp.dot(z, z) + jnp.sum(jnp.log(jnp.diagonal(chol))) +
+          0.5 * n * math.log(2 * math.pi))
 
 
 def posterior(raw, x, y, mask, x_test, wrap_yaw: bool = True):
@@ -169,7 +170,8 @@ def loss_and_grad(raw, x, y, mask, wrap_yaw: bool = True):
   chol = linalg.cholesky(signal_var * shape + jnp.diag(diagonal))
   z = linalg.solve_triangular(chol, y, lower=True)
   n = jnp.sum(mask).astype(jnp.float32)
-  loss = 0.5 * jnp.dot(z, z) + jnp.sum(jnp.log(jnp.diagonal(chol))) + 0.5 * n * math.log(2 * math.pi)
+  loss = (0.5 * jnp.dot(z, z) + jnp.sum(jnp.log(jnp.diagonal(chol))) +
+          0.5 * n * math.log(2 * math.pi))
 
   alpha = linalg.solve_triangular(chol.T, z, lower=False)
   k_inv = _solve(chol, jnp.eye(y.shape[0], dtype=jnp.float32))

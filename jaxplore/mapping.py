@@ -42,7 +42,8 @@ def logit(p):
 
 
 def classify(logodds, params):
-  """(free, occupied, unknown) bool masks of the belief under the ``p_free``/``p_occ`` thresholds."""
+  """(free, occupied, unknown) bool masks of the belief under the ``p_free``/``p_occ``
+  thresholds."""
   free = logodds < logit(params.p_free)
   occupied = logodds > logit(params.p_occ)
   return free, occupied, ~(free | occupied)
@@ -144,7 +145,8 @@ def frontier(free, unknown, occupied):
 
 
 def update_logodds(logodds, observed, params):
-  """Inverse sensor model: add ``l_free``/``l_occ`` once per observed cell, clamp to [l_min, l_max]."""
+  """Inverse sensor model: add ``l_free``/``l_occ`` once per observed cell, clamp to
+  [l_min, l_max]."""
   delta = jnp.where(observed == 2, params.l_occ, jnp.where(observed == 1, params.l_free, 0.0))
   return jnp.clip(logodds + delta, params.l_min, params.l_max)
 

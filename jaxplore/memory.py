@@ -63,6 +63,7 @@ def planner_memory_bytes(config: SimConfig) -> int:
   """Bytes of one robot's planner memory (``PlannerSpec.init_memory``), from its shapes alone
   (``jax.eval_shape``: nothing is computed or allocated); 0 for a planner without memory."""
   import jax
+
   from jaxplore.config import make_params
   from jaxplore.planners.base import get_planner
   from jaxplore.robot import planner_context
@@ -82,6 +83,7 @@ def graph_bytes(config: SimConfig) -> int:
     return 0
   import jax
   import jax.numpy as jnp
+
   from jaxplore import posegraph
   beams = config.n_beams if config.slam == "scan_matching" else 0
   shapes = jax.eval_shape(lambda: posegraph.init(jnp.zeros(3), config.graph_nodes,
@@ -89,8 +91,8 @@ def graph_bytes(config: SimConfig) -> int:
   return _tree_bytes(shapes)
 
 
-# A planner's memory (and a pose graph) is held three times: in the state, in the next state of the compiled loop,
-# and in the host copy of the final state.
+# A planner's memory (and a pose graph) is held three times: in the state, in the next state of
+# the compiled loop, and in the host copy of the final state.
 PLANNER_MEMORY_COPIES = 3
 
 

@@ -21,7 +21,8 @@ def reduction_rate_std(distance, entropy, interval: float) -> float:
   if distance.size < 2 or distance[-1] < 2 * interval:
     return float("nan")
   marks = np.arange(0.0, distance[-1] + 1e-9, interval)
-  # distance is non-decreasing; np.interp needs increasing x, so keep the first sample of each value.
+  # distance is non-decreasing; np.interp needs increasing x, so keep the first sample of each
+  # value.
   keep = np.concatenate([[True], np.diff(distance) > 0])
   at = np.interp(marks, distance[keep], entropy[keep])
   rates = -np.diff(at) / interval
@@ -176,8 +177,8 @@ def slam_accuracy(graph) -> dict:
 
 def map_and_graph_row(logodds, truth_occupied, graph=None, dopt_curve=None) -> dict:
   """One robot's map-quality columns (with ``misplaced_walls``: the fraction of the cells its
-  belief holds occupied, P > 0.5, that lie more than one cell from every true wall) and, with its final
-  pose graph (NumPy leaves of a :class:`jaxplore.posegraph.PoseGraph`), its connectivity and
+  belief holds occupied, P > 0.5, that lie more than one cell from every true wall) and, with its
+  final pose graph (NumPy leaves of a :class:`jaxplore.posegraph.PoseGraph`), its connectivity and
   Table II columns, and with the ``scan_matching`` model its :func:`slam_accuracy`."""
   from jaxplore.slam import accuracy
   row = map_quality(logodds, truth_occupied)

@@ -1,4 +1,5 @@
-"""Figures of a run, drawn from its saved results folder (so ``jaxplore plot DIR`` can redraw them)."""
+"""Figures of a run, drawn from its saved results folder (so ``jaxplore plot DIR`` can redraw
+them)."""
 
 from __future__ import annotations
 
@@ -44,8 +45,8 @@ def belief_map(ax, occupied, logodds, res, origin, curves=None, robots=(0,)):
   Truth walls are drawn dark grey, believed-free cells white, believed-occupied black, unknown
   light grey.
   """
-  ax.imshow(belief_rgb(occupied, logodds), origin="lower", extent=_extent(occupied.shape, res, origin),
-            interpolation="nearest")
+  ax.imshow(belief_rgb(occupied, logodds), origin="lower",
+            extent=_extent(occupied.shape, res, origin), interpolation="nearest")
   if curves is not None and len(curves):
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, r in enumerate(robots):
@@ -145,7 +146,8 @@ def run_figures(run_dir) -> list[Path]:
 
   fig, ax = plt.subplots(figsize=(7, 6))
   shown = tuple(range(min(4, maps["logodds"].shape[0])))
-  belief_map(ax, maps["occupied"], maps["logodds"][0], float(maps["res"]), maps["origin"], curves, shown)
+  belief_map(ax, maps["occupied"], maps["logodds"][0], float(maps["res"]), maps["origin"], curves,
+             shown)
   graph = saved_exploration_graph(run_dir, float(maps["res"]), maps["origin"])
   if graph is not None:
     exploration_graph(ax, graph.nodes, graph.edges, graph.lsr, graph.open, graph.current)
@@ -230,7 +232,8 @@ def sweep_figure(episodes: pd.DataFrame, names, path) -> Path:
   for ax, column, title in ((axes[0], "E_r", "entropy reduced per metre\nE_r (nats/m)"),
                             (axes[1], "coverage", "coverage of\nreachable free area")):
     mean, std = grouped[column].mean(), grouped[column].std().fillna(0.0)
-    ax.bar(range(len(labels)), mean.to_numpy(), yerr=std.to_numpy(), capsize=2, color="tab:blue", alpha=0.8)
+    ax.bar(range(len(labels)), mean.to_numpy(), yerr=std.to_numpy(), capsize=2, color="tab:blue",
+           alpha=0.8)
     ax.set_ylabel(title)
   axes[1].set_xticks(range(len(labels)))
   axes[1].set_xticklabels(labels, rotation=70, ha="right", fontsize=7)

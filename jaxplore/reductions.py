@@ -43,5 +43,6 @@ def argmin(values: jax.Array, width: int | None = None) -> jax.Array:
 
 
 def argmax(values: jax.Array, width: int | None = None) -> jax.Array:
-  """The row-major flat index of the first maximum, as ``jnp.argmax(values.ravel())`` (see :func:`argmin`)."""
+  """The row-major flat index of the first maximum, as ``jnp.argmax(values.ravel())`` (see
+  :func:`argmin`)."""
   return _arg_extreme(values, width, jnp.max, jnp.argmax)

@@ -13,15 +13,23 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxplore import memory, posegraph, sim
-from jaxplore.config import (STATIC_SETTINGS, ConfigError, Params, SimConfig, config_for,
-                             make_params, validate_params)
+from jaxplore.config import (
+  STATIC_SETTINGS,
+  ConfigError,
+  Params,
+  SimConfig,
+  config_for,
+  make_params,
+  validate_params,
+)
 from jaxplore.maps import GridMap, load_world
 from jaxplore.planners import get_planner
 from jaxplore.runspec import STATIC_PARAMS, RunSpec

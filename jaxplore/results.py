@@ -72,7 +72,7 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
       row.update(metrics.episode_row(curve, initial, grid.res, n_reach, rate_interval))
     row["idle_steps"] = int(state.idle_steps[b])
     row["collisions"] = int(state.collisions[b])
-    graph = None if state.graph is None else jax.tree.map(lambda x: x[b], state.graph)
+    graph = None if state.graph is None else jax.tree.map(lambda x, b=b: x[b], state.graph)
     row.update(metrics.map_and_graph_row(
         state.logodds[b], grid.occupied, graph,
         None if curve is None or "dopt_mean" not in curve else curve.dopt_mean.to_numpy()))

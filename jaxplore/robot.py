@@ -184,9 +184,9 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
     (params, pose, pose_est, cov, key, active, angles, dirs, est_dirs, odometry, totals) = inputs
     true_uv = to_cells(pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
     noise_key, _ = jax.random.split(key)
-    scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles, params.r_max / res,
-                          n_cross, key=noise_key, noise_cells=params.range_noise / res, active=active,
-                          dirs=dirs)
+    scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles,
+                          params.r_max / res, n_cross, key=noise_key,
+                          noise_cells=params.range_noise / res, active=active, dirs=dirs)
     def seen_from(pose_est, est_dirs=None):
       """The scan as integrated from ``pose_est``, where it is seen from, its end cells and beam
       directions (``est_dirs``: those directions, when already computed)."""
@@ -346,7 +346,8 @@ def _slam_front(config, world, params, graph, belief, scan, offsets, pose, pose_
   j1, _ = motion.compounding_jacobians(previous, pose_est)
   drift_cov = jnp.where(new, j1 @ graph.drift_cov @ j1.T + edge_cov, graph.drift_cov)
   graph = graph.replace(acc_pose=acc_pose, acc_cov=acc_cov, drift_cov=drift_cov,
-                        matches_rejected=graph.matches_rejected + (new & ~accepted).astype(jnp.int32))
+                        matches_rejected=(graph.matches_rejected +
+                                          (new & ~accepted).astype(jnp.int32)))
   graph = slam_model.add_keyframe(graph, new, pose_est, pose, info)
   return pose_est, cov, graph, _Keyframe(new, stored, points, valid)
 

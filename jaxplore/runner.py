@@ -135,7 +135,8 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   episodes.insert(2, "seed", spec.seed if spec.robot_seeds is None else list(spec.robot_seeds))
   described = resolved.describe()
   resolved_config = {
-      "jaxplore_version": __version__, "jax_version": jax.__version__, "numpy_version": np.__version__,
+      "jaxplore_version": __version__, "jax_version": jax.__version__,
+      "numpy_version": np.__version__,
       "python": platform.python_version(), "devices": [str(d) for d in jax.devices()],
       "backend": jax.default_backend(), "device_kind": jax.local_devices()[0].device_kind,
       "sharded_over": n_dev, "seed": spec.seed,

@@ -13,7 +13,8 @@ the start pose, parameter names), so a bad setting is refused before any compute
 (planner weights, ranges that depend on the grid) is checked by the resolver.
 
 Every setting is declared once (:mod:`jaxplore.settings`): the run's own (this class's
-declared fields, :data:`RUN_SETTINGS`: flags of ``jaxplore run``, top-level TOML keys), traced simulator parameters (:class:`jaxplore.config.Params`; sweeping them never
+declared fields, :data:`RUN_SETTINGS`: flags of ``jaxplore run``, top-level TOML keys), traced
+simulator parameters (:class:`jaxplore.config.Params`; sweeping them never
 recompiles), static simulator settings (:data:`STATIC_PARAMS`: each value is a compiled program
 of its own), a planner's traced weights and its static settings (:func:`kind_of`). A user names
 any of them in ``params`` (``--set``, a TOML ``[set]`` table) without saying whose it is:
@@ -27,13 +28,20 @@ import math
 import os
 import sys
 import types
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from jaxplore.config import (PARAM_FIELDS, PRESETS, SLAM_MODELS, STATIC_SETTINGS, STRATEGIES,
-                             ConfigError)
+from jaxplore.config import (
+  PARAM_FIELDS,
+  PRESETS,
+  SLAM_MODELS,
+  STATIC_SETTINGS,
+  STRATEGIES,
+  ConfigError,
+)
 from jaxplore.settings import declared, setting
 
 # The static simulator settings a user sets by name (each value is a compiled program of its
@@ -146,7 +154,7 @@ def _misplaced(params: Mapping, planner_params: Mapping, planner) -> list[tuple[
   for name in map(str, planner_params):
     if name in SIM_PARAMS:
       moves.append((name, "planner_params", "params"))
-  for name, source, target in moves:
+  for name, _source, target in moves:
     if name in (planner_params if target == "planner_params" else params):
       raise ConfigError(f"{name} is given twice (as a simulator parameter and a planner "
                         f"parameter); give it once")
@@ -229,7 +237,8 @@ class RunSpec:
   replan_every: int | None = setting(None, "motion steps between planning rounds of a robot "
                                      "on its path", owner="run", static=True, ge=1, integer=True,
                                      unset="the preset's")
-  path_capacity: int | None = setting(None, "waypoints a path may hold", owner="run",
+  path_capacity: int | None = setting(None, "waypoints a path may hold (the robot's own cell "
+                                      "first, then where it goes)", owner="run",
                                       static=True, ge=2,
                                       integer=True, unset="256")
   plan_window: int | None = setting(None, "side in cells of the window a windowed planner "

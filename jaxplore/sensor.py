@@ -108,7 +108,8 @@ def _crossings(b: Beams, u0, v0, k):
   cu0, cv0 = jnp.floor(u0), jnp.floor(v0)
   t_x = b.t0_u + k * b.step_u  # vertical lines: the column changes
   t_y = b.t0_v + k * b.step_v  # horizontal lines: the row changes
-  row_x = jnp.floor(v0 + (t_x - CORNER_EPS) * b.dv)  # the row the beam leaves (side cell at corners)
+  # the row the beam leaves (side cell at corners)
+  row_x = jnp.floor(v0 + (t_x - CORNER_EPS) * b.dv)
   col_y = jnp.floor(u0 + (t_y + CORNER_EPS) * b.du)  # the column after the crossing
   # Exact small integers: the entered column (row) is formed in integer arithmetic.
   step = lambda sign: jnp.where(sign > 0, 1, -1) * (k.astype(jnp.int32) + 1)
@@ -247,7 +248,8 @@ def measure(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=
   start_row, start_col = jnp.floor(v0).astype(jnp.int32), jnp.floor(u0).astype(jnp.int32)
   start_occupied = truth_framed[_framed_index(start_row, start_col, shape)]
   grouped = tuple(_groups(a, MEASURE_GROUP) for a in (du, dv))
-  block = jnp.arange(MEASURE_BLOCK, dtype=jnp.int32)[:, None]  # crossings on axis 0, beams on axis 1
+  # crossings on axis 0, beams on axis 1
+  block = jnp.arange(MEASURE_BLOCK, dtype=jnp.int32)[:, None]
 
   def walk_group(g, found):
     b = beams(u0, v0, None, (grouped[0][g], grouped[1][g]))
@@ -255,7 +257,8 @@ def measure(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=
     def hit_distances(kx, ky):
       t_x = jnp.where(kx < none, _distance(b.t0_u, b.step_u, kx), jnp.inf)
       t_y = jnp.where(ky < none, _distance(b.t0_v, b.step_v, ky), jnp.inf)
-      return jnp.where(t_x <= r_max_cells, t_x, jnp.inf), jnp.where(t_y <= r_max_cells, t_y, jnp.inf)
+      return (jnp.where(t_x <= r_max_cells, t_x, jnp.inf),
+              jnp.where(t_y <= r_max_cells, t_y, jnp.inf))
 
     def body(carry):
       k0, kx, ky = carry
@@ -285,7 +288,8 @@ def measure(truth_framed, shape, u0, v0, angles, r_max_cells, n_cross: int, key=
             cols.at[g].set(jnp.where(x_first, col_x, col_y)))
 
   shape_g = grouped[0].shape
-  nothing = (jnp.full(shape_g, jnp.inf), jnp.zeros(shape_g, jnp.int32), jnp.zeros(shape_g, jnp.int32))
+  nothing = (jnp.full(shape_g, jnp.inf), jnp.zeros(shape_g, jnp.int32),
+             jnp.zeros(shape_g, jnp.int32))
   found = _for_each_group(shape_g[0], active, walk_group, nothing)
   t_hit, hit_rows, hit_cols = (a.ravel()[:n] for a in found)
   at_start = start_occupied & active
@@ -394,8 +398,8 @@ def grid_of_tiles(tiles, shape):
   return grid[: shape[0], : shape[1]]
 
 
-def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cross: int, active=True,
-                  dirs=None, true_origin=None, true_dirs=None):
+def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cross: int,
+                  active=True, dirs=None, true_origin=None, true_dirs=None):
   """Writes what a scan says about the grid into ``observed``: 1 = seen free, 2 = seen occupied.
 
   Seen from (u0, v0) (where the robot *believes* it is) along ``scan.angles``: a cell a beam
@@ -466,10 +470,12 @@ def mark_observed(observed, shape, scan: Scan, u0, v0, end_rows, end_cols, n_cro
 
     def body(carry):
       k0, observed = carry
-      (t_x, row_x, col_x), (t_y, row_y, col_y) = _crossings(b, tu, tv, (k0 + block).astype(jnp.float32))
+      (t_x, row_x, col_x), (t_y, row_y, col_y) = _crossings(
+          b, tu, tv, (k0 + block).astype(jnp.float32))
       beam_dirs = ((tdu[None], tdv[None]), (du[None], dv[None]))
-      index = jnp.concatenate([free_index(row_x, col_x, t_x, ranges[None], end_index[None], beam_dirs),
-                               free_index(row_y, col_y, t_y, ranges[None], end_index[None], beam_dirs)])
+      index = jnp.concatenate([
+          free_index(row_x, col_x, t_x, ranges[None], end_index[None], beam_dirs),
+          free_index(row_y, col_y, t_y, ranges[None], end_index[None], beam_dirs)])
       return k0 + block_size, observed.at[index.ravel()].set(1, mode=PROMISE_IN_BOUNDS)
 
     # Crossing k is at least k cells away: none past the longest range of the group is free.

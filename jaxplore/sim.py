@@ -18,9 +18,28 @@ import jax.numpy as jnp
 
 from jaxplore.config import ConfigError, Params, SimConfig
 from jaxplore.planners.base import get_planner
-from jaxplore.planning import belief_view, crop_maps, needs_plan, plan, plan_where_needed, uses_window
-from jaxplore.robot import (COMPLETE, EXHAUSTED, REASONS, RUNNING, TIMEOUT, Record, State,
-                            planner_context, record, reset, robot_view, step)
+from jaxplore.planning import (
+  belief_view,
+  crop_maps,
+  needs_plan,
+  plan,
+  plan_where_needed,
+  uses_window,
+)
+from jaxplore.robot import (
+  COMPLETE,
+  EXHAUSTED,
+  REASONS,
+  RUNNING,
+  TIMEOUT,
+  Record,
+  State,
+  planner_context,
+  record,
+  reset,
+  robot_view,
+  step,
+)
 from jaxplore.world import World, cell_centre, cell_of, make_world, sample_start, to_cells
 
 
@@ -54,7 +73,8 @@ def epoch(config: SimConfig, world: World, params: Params, state: State):
 
 
 def advance_unjitted(config: SimConfig, world: World, params: Params, state: State, n_epochs: int):
-  """``n_epochs * replan_every`` steps for a batch; records stacked as [n_epochs * replan_every, B]."""
+  """``n_epochs * replan_every`` steps for a batch; records stacked as
+  [n_epochs * replan_every, B]."""
   def body(s, _):
     return epoch(config, world, params, s)
 
@@ -103,6 +123,6 @@ __all__ = [
     "World", "State", "Record", "make_world", "reset", "step", "record", "plan", "needs_plan",
     "plan_where_needed", "uses_window", "belief_view", "crop_maps", "robot_view",
     "planner_context", "epoch", "advance", "advance_unjitted", "reset_batch", "rollout",
-    "broadcast_params", "config_from_dict", "cell_of", "cell_centre", "to_cells", "sample_start", "REASONS",
-    "RUNNING", "COMPLETE", "EXHAUSTED", "TIMEOUT",
+    "broadcast_params", "config_from_dict", "cell_of", "cell_centre", "to_cells", "sample_start",
+    "REASONS", "RUNNING", "COMPLETE", "EXHAUSTED", "TIMEOUT",
 ]

@@ -69,7 +69,8 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
                         f"(x in [{grid.origin[0]}, {grid.origin[0] + w * grid.res}], "
                         f"y in [{grid.origin[1]}, {grid.origin[1] + h * grid.res}])")
     if grid.occupied[i, j]:
-      raise ConfigError(f"start {tuple(start_xy)} m is inside a wall of map {grid.name!r} (cell {i}, {j})")
+      raise ConfigError(f"start {tuple(start_xy)} m is inside a wall of map {grid.name!r} "
+                        f"(cell {i}, {j})")
     nearest = start_clearance(grid, start_xy, r_robot)
     if nearest < r_robot:
       raise ConfigError(f"start {tuple(start_xy)} m is {nearest:.3f} m from the centre of an "
@@ -81,7 +82,8 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
     reachable = labels == (1 + int(np.argmax(sizes)))
   start_ok = reachable & (clearance > radius)
   if not start_ok.any():
-    raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius {r_robot} m")
+    raise ConfigError(f"map {grid.name!r}: no free cell has clearance above the robot radius "
+                      f"{r_robot} m")
   # Where the disc's centre can go: the 8-connected component of the cells it fits in, the
   # start's (random starts: the largest, so that no robot starts in a closet it cannot leave).
   fits, n_fits = ndimage.label(start_ok, structure=np.ones((3, 3), bool))
@@ -96,7 +98,8 @@ def make_world(grid: GridMap, r_robot: float, start_xy=None) -> World:
   # narrower than its disc, which it could never complete.
   reachable = reachable & (ndimage.distance_transform_edt(~centres) <= math.sqrt(2) * (radius + 1))
   return World(occupied=jnp.asarray(grid.occupied),
-               truth_framed=sensor.frame_truth(jnp.asarray(grid.occupied)), reachable=jnp.asarray(reachable),
+               truth_framed=sensor.frame_truth(jnp.asarray(grid.occupied)),
+               reachable=jnp.asarray(reachable),
                start_ok=jnp.asarray(start_ok), n_reachable=jnp.float32(reachable.sum()),
                origin=jnp.asarray(grid.origin, jnp.float32))
 

@@ -72,7 +72,7 @@ def test_episode_metrics_follow_their_definitions(small_run):
     (dict(robots=0), ConfigError, "robots"),
     (dict(planner_params={"k9": 1.0}), ConfigError, "k9"),
     (dict(plan_window=-8), ConfigError, "plan_window"),
-    (dict(path_capacity=1), ConfigError, "path_capacity must be at least 2"),
+    (dict(path_capacity=1), ConfigError, "path_capacity must be an integer >= 2"),
 ])
 def test_bad_input_is_refused_before_compute(kwargs, error, match):
   settings = dict(SMALL, **kwargs)

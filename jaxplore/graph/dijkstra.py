@@ -217,7 +217,8 @@ def _relaxed(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.
   return jnp.minimum(straight, diagonal)
 
 
-def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array) -> jax.Array:
+def _lowered_by_one_relaxation(dist: jax.Array, cost: jax.Array,
+                               diagonal_cost: jax.Array) -> jax.Array:
   """bool[C]: whether relaxing every cell of a framed ``[H + 2, W + 2, C]`` array once from its
   8 neighbours (:func:`_relaxed`) lowers any distance of each grid."""
   return jnp.any(_relaxed(dist, cost, diagonal_cost) < dist[1:-1, 1:-1], axis=(0, 1))
@@ -566,7 +567,7 @@ def _solve_in_chunks(node_cost, source, chunk: int, max_sweeps: int, method: str
   return jax.tree.map(lambda x: x.reshape((num_chunks * chunk,) + x.shape[2:])[:batch], result)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _single_grid_solver(max_sweeps: int, tiles_after_rounds: int):
   """``shortest_paths`` for one grid, whose ``vmap`` becomes ``shortest_paths_batched``."""
 
@@ -602,8 +603,8 @@ def shortest_paths(
   """Shortest paths from one source cell over an 8-connected grid.
 
   Written for one grid; ``jax.vmap`` of it runs ``shortest_paths_batched`` (chunks of
-  ``DEFAULT_CHUNK`` grids by cone sweeping, or as :func:`batching` says), which is several times faster on CPU
-  than batching the loops.
+  ``DEFAULT_CHUNK`` grids by cone sweeping, or as :func:`batching` says), which is several times
+  faster on CPU than batching the loops.
 
   Args:
     node_cost: f32[H, W]; the cost of entering each cell per unit step, >= 0 (zeros allowed);

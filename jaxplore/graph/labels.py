@@ -106,7 +106,8 @@ def component_roots(mask: jax.Array, max_rounds: int | None = None) -> jax.Array
     hooked = jump_to_roots(hooked)
     return hooked, rounds + 1, jnp.any(hooked != parent)
 
-  parent, _, _ = lax.while_loop(not_converged, hook_and_jump, (parent, jnp.int32(0), jnp.bool_(True)))
+  parent, _, _ = lax.while_loop(not_converged, hook_and_jump,
+                                (parent, jnp.int32(0), jnp.bool_(True)))
   return jnp.where(mask, parent[:n].reshape(height, width), -1)
 
 
@@ -162,7 +163,8 @@ def clusters(mask: jax.Array, max_clusters: int, max_rounds: int | None = None) 
   cols = (flat % width).astype(jnp.float32)
   sum_rows = jax.ops.segment_sum(rows, segment, num_segments=slots + 1)[:slots]
   sum_cols = jax.ops.segment_sum(cols, segment, num_segments=slots + 1)[:slots]
-  centroid = jnp.stack([sum_rows, sum_cols], axis=-1) / jnp.maximum(size, 1)[:, None].astype(jnp.float32)
+  centroid = (jnp.stack([sum_rows, sum_cols], axis=-1) /
+              jnp.maximum(size, 1)[:, None].astype(jnp.float32))
 
   if slots < max_clusters:
     pad = max_clusters - slots

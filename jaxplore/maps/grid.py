@@ -35,9 +35,11 @@ class GridMap:
   def __post_init__(self):
     occ = np.asarray(self.occupied)
     if occ.ndim != 2 or occ.shape[0] < 3 or occ.shape[1] < 3:
-      raise MapError(f"map {self.name!r}: occupancy grid must be 2-D and at least 3x3, got shape {occ.shape}")
+      raise MapError(f"map {self.name!r}: occupancy grid must be 2-D and at least 3x3, got shape "
+                     f"{occ.shape}")
     if not (np.isfinite(self.res) and self.res > 0):
-      raise MapError(f"map {self.name!r}: resolution must be a positive number of metres, got {self.res!r}")
+      raise MapError(f"map {self.name!r}: resolution must be a positive number of metres, got "
+                     f"{self.res!r}")
     object.__setattr__(self, "occupied", occ.astype(bool))
     object.__setattr__(self, "origin", (float(self.origin[0]), float(self.origin[1])))
     object.__setattr__(self, "res", float(self.res))

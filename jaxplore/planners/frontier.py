@@ -55,10 +55,12 @@ def plan_nearest_frontier(config, view: base.BeliefView, robot: base.RobotView, 
   valid = jnp.isfinite(cost)
   cells, length, look_at = plan_to(config, view, robot, pred, goal, valid)
   return base.Plan(waypoints=cells, length=length, goal=goal, look_at=look_at, valid=valid,
-                   gain=jnp.float32(0), cost=cost, n_candidates=jnp.sum(candidates).astype(jnp.int32))
+                   gain=jnp.float32(0), cost=cost,
+                   n_candidates=jnp.sum(candidates).astype(jnp.int32))
 
 
-@base.register("fd", summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)",
+@base.register("fd",
+               summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)",
                blacklist_on_arrival=True, windowed=True)
 def plan_fd(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Nearest frontier that never returns to a reached frontier goal (Ahmed et al.'s FD).

@@ -238,7 +238,8 @@ def neighbourhoods(view: base.BeliefView, cluster_ids, num_clusters: int, radius
   segment = jnp.where(within, nearest, num_clusters).ravel()
 
   def per_cluster(values):
-    return jax.ops.segment_sum(values.ravel(), segment, num_segments=num_clusters + 1)[:num_clusters]
+    return jax.ops.segment_sum(values.ravel(), segment,
+                               num_segments=num_clusters + 1)[:num_clusters]
 
   info = per_cluster(jnp.where(expected_unknown, entropy_bits(expectation), 0.0))
   free = per_cluster((within & view.free).astype(jnp.int32))
@@ -294,7 +295,8 @@ def plan_frt(config, view: base.BeliefView, robot: base.RobotView, params, key) 
 
 
 @base.register("ig", defaults=IgWeights,
-               summary="Godoy-Calvo Eq 3: frontier cluster of lowest C_d·d − C_i·f·I (expected entropy)")
+               summary="Godoy-Calvo Eq 3: frontier cluster of lowest C_d·d − C_i·f·I "
+                       "(expected entropy)")
 def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Dynamic entropy frontiers, Godoy-Calvo Eq 3: ``U = C_d·d − C_i·f·I``, lowest wins.
 
@@ -307,7 +309,8 @@ def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -
   clusters = candidates.clusters
   # Clusters dropped by min_frontier_size claim no cells (the authors' code drops them first).
   kept = clusters.size.astype(jnp.float32) * config.res >= w["min_frontier_size"] - 1e-6
-  ids = jnp.where((clusters.ids >= 0) & kept[jnp.clip(clusters.ids, 0, MAX_CLUSTERS - 1)], clusters.ids, -1)
+  ids = jnp.where((clusters.ids >= 0) & kept[jnp.clip(clusters.ids, 0, MAX_CLUSTERS - 1)],
+                  clusters.ids, -1)
   hood = neighbourhoods(view, ids, MAX_CLUSTERS, w["D"] / config.res, w["k_f"])
   d = _distance(candidates, dist, w)
   cost = w["C_d"] * d - w["C_i"] * hood.factor * hood.info

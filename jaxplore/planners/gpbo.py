@@ -1,4 +1,5 @@
-"""GP / Bayesian-optimisation mutual-information exploration (Bai et al. 2016; Li 2020's "Method 29").
+"""GP / Bayesian-optimisation mutual-information exploration (Bai et al. 2016; Li 2020's
+"Method 29").
 
 Li et al. 2020 compare their planner against Bai, Wang, Chen & Englot's (Li's ref. 29): predict
 the information a scan would bring from a candidate pose with a Gaussian process over poses and
@@ -198,7 +199,8 @@ def candidate_poses(reference, settings: Settings, res: float):
   """
   k = reference.shape[0]
   yaw = 2.0 * math.pi * jnp.arange(settings.n_yaws, dtype=jnp.float32) / settings.n_yaws
-  radius = (settings.radius_min + settings.radius_step * jnp.arange(settings.n_radii, dtype=jnp.float32)) / res
+  radius = (settings.radius_min +
+            settings.radius_step * jnp.arange(settings.n_radii, dtype=jnp.float32)) / res
   centre = reference.astype(jnp.float32) + 0.5
   rows = centre[:, None, None, 0] - radius[None, None, :] * jnp.sin(yaw)[None, :, None]
   cols = centre[:, None, None, 1] - radius[None, None, :] * jnp.cos(yaw)[None, :, None]
@@ -211,7 +213,8 @@ def candidate_poses(reference, settings: Settings, res: float):
 
 @base.register("gpbo", defaults=Weights, settings=Settings(),
                init_memory=init_memory, commits=True,
-               summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, GP-UCB (Li's Method 29)")
+               summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, GP-UCB "
+                       "(Li's Method 29)")
 def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, memory):
   """One GP/BO planning round for one robot (see the module docstring). Returns (Plan, memory)."""
   settings: Settings = ctx.settings
@@ -219,7 +222,8 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
   h, wd = ctx.height, ctx.width
   res = ctx.res
 
-  dist, pred = reachable_paths(ctx, view, robot, jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32))
+  dist, pred = reachable_paths(ctx, view, robot,
+                               jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32))
   groups = labels.clusters(view.frontier, settings.max_groups)
   reference = reference_cells(groups)
   cells, yaws, group = candidate_poses(reference, settings, res)
@@ -247,8 +251,10 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
 
   # Virtual scans: the belief's walls stop the beams.
   framed = sensor.frame_truth(view.occupied)
-  tables = virtual_scan.cell_gains(view.logodds, params, jnp.round(w["gain_kind"]).astype(jnp.int32), res)
-  pose_xy = jnp.stack([(c.astype(jnp.float32) + 0.5) * res, (r.astype(jnp.float32) + 0.5) * res], -1)
+  tables = virtual_scan.cell_gains(view.logodds, params,
+                                   jnp.round(w["gain_kind"]).astype(jnp.int32), res)
+  pose_xy = jnp.stack([(c.astype(jnp.float32) + 0.5) * res,
+                       (r.astype(jnp.float32) + 0.5) * res], -1)
 
   def mutual_information(index):
     """MI per metre of candidate ``index`` (into the flattened candidates)."""
@@ -286,7 +292,8 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
     evaluated, evaluated_y, evaluated_mask, test_open, raw = carry
     index, ok, test_open = jax.lax.cond(
         slot < n_train,
-        lambda: (order[jnp.minimum(slot, n_train - 1)], picked[jnp.minimum(slot, n_train - 1)], test_open),
+        lambda: (order[jnp.minimum(slot, n_train - 1)], picked[jnp.minimum(slot, n_train - 1)],
+                 test_open),
         lambda: acquire(slot - n_train + 1, raw, evaluated, evaluated_y, evaluated_mask, test_open))
     evaluated = evaluated.at[slot].set(index)
     evaluated_y = evaluated_y.at[slot].set(jnp.where(ok, mutual_information(index), 0.0))
@@ -296,8 +303,8 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
     return evaluated, evaluated_y, evaluated_mask, test_open, raw
 
   slots = n_train + n_bo
-  init = (jnp.zeros((slots,), jnp.int32), jnp.zeros((slots,), jnp.float32), jnp.zeros((slots,), bool),
-          picked[n_train:], jnp.asarray(memory.raw, jnp.float32))
+  init = (jnp.zeros((slots,), jnp.int32), jnp.zeros((slots,), jnp.float32),
+          jnp.zeros((slots,), bool), picked[n_train:], jnp.asarray(memory.raw, jnp.float32))
   train_index, train_y, train_mask, _, raw = jax.lax.fori_loop(0, slots, evaluate, init)
 
   best = jnp.argmax(jnp.where(train_mask, train_y, -jnp.inf))
@@ -306,7 +313,8 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
   goal = cells[chosen]
   waypoints, length, _ = plan_to(ctx, view, robot, pred, goal, valid_plan)
   plan = base.Plan(waypoints=waypoints, length=length, goal=goal, look_at=reference[group[chosen]],
-                   valid=valid_plan, gain=jnp.where(valid_plan, train_y[best], 0.0).astype(jnp.float32),
+                   valid=valid_plan,
+                   gain=jnp.where(valid_plan, train_y[best], 0.0).astype(jnp.float32),
                    cost=jnp.where(valid_plan, path_m[chosen], jnp.inf).astype(jnp.float32),
                    n_candidates=n_valid)
   # Too few candidates while frontier groups remain: turn and look again (step 3).

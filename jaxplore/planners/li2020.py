@@ -66,6 +66,7 @@ from jaxplore.graph.tree import nearest_ancestor, path_sums
 from jaxplore.planners import base
 from jaxplore.settings import setting
 
+
 @dataclasses.dataclass(frozen=True)
 class Weights:
   """Traced weights of ``li2020`` (``params.planner[name]``; sweeping them never recompiles)."""
@@ -146,7 +147,8 @@ def init_memory(ctx, params):
   """The progress timeout's memory: unknown cells at the last progress, metres driven since,
   where the robot planned last (once it has), and whether the timeout ended the episode."""
   return {"unknown": jnp.int32(ctx.height * ctx.width), "driven": jnp.float32(0.0),
-          "xy": jnp.zeros((2,), jnp.float32), "planned": jnp.bool_(False), "stuck": jnp.bool_(False)}
+          "xy": jnp.zeros((2,), jnp.float32), "planned": jnp.bool_(False),
+          "stuck": jnp.bool_(False)}
 
 GEOMETRY = ("length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
 CHANNELS = ("gain", "reexplore") + GEOMETRY
@@ -169,7 +171,8 @@ def boundaries(view: base.BeliefView, tau_e):
 
 
 def edge_weights(view: base.BeliefView, b_e, b_g, k1, k2):
-  """Node cost of Eq 8: edges into B_e scaled by k1, into B_g by k2, blocked off the traversable set."""
+  """Node cost of Eq 8: edges into B_e scaled by k1, into B_g by k2, blocked off the traversable
+  set."""
   weight = jnp.where(b_e, k1, jnp.where(b_g, k2, 1.0))
   return jnp.where(view.traversable, weight, jnp.inf).astype(jnp.float32)
 
@@ -181,7 +184,8 @@ def disc_offsets(radius: float):
 
 
 def crescents(radius: float):
-  """For each parent direction d (parent = v + d): the disc offsets of v outside the parent's disc."""
+  """For each parent direction d (parent = v + d): the disc offsets of v outside the parent's
+  disc."""
   disc = disc_offsets(radius)
   return {d: [o for o in disc if (o[0] - d[0]) ** 2 + (o[1] - d[1]) ** 2 > radius * radius + 1e-9]
           for d in mapping.NEIGHBOURS_8}
@@ -242,7 +246,7 @@ def cell_gains(view: base.BeliefView, params, h0, radius: float, eq21: str = "se
   return jnp.stack([gain, reexplore])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def ray_tree(radius: float):
   """The disc offsets as a tree of sight lines, in depth-first pre-order.
 
@@ -291,7 +295,7 @@ def ray_tree(radius: float):
   return np.asarray(order, np.int32), np.asarray(depth, np.int32), member, sides
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def sight_levels(radius: float):
   """:func:`ray_tree` regrouped for :func:`visible_gains`: in groups of subtrees, each group by
   depth, so that the masks of one depth of a group are all that its next depth reads.
@@ -576,7 +580,8 @@ def path_geometry(config, robot, params, pred):
   rows, cols = idx // w, idx % w
   parent, has_parent, d_row, d_col, _ = _tree_steps(config, robot, pred)
 
-  xy = jnp.stack([(cols - robot.cell[1]) * res, (rows - robot.cell[0]) * res], -1).astype(jnp.float32)
+  xy = jnp.stack([(cols - robot.cell[1]) * res, (rows - robot.cell[0]) * res],
+                 -1).astype(jnp.float32)
   spacing = road_mark_cells(config)
   if spacing <= 1:
     # Per grid cell: the heading of the move into each node is one of 8 directions (a node
@@ -601,7 +606,8 @@ def path_geometry(config, robot, params, pred):
     turn = heading - previous
     road_mark = (depth >= spacing) & (jnp.mod(depth, spacing) == 0)
     delta_phi = jnp.where(road_mark, jnp.arctan2(jnp.sin(turn), jnp.cos(turn)), 0.0)
-  delta_d = jnp.where(has_parent, res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
+  delta_d = jnp.where(has_parent,
+                      res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
 
   a = (params.sigma_d * delta_d) ** 2
   b = (params.sigma_phi * delta_phi) ** 2
@@ -729,7 +735,8 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   fallback_score = jnp.where(boundary, reexplore, -jnp.inf)
   fallback = reductions.argmax(fallback_score, w)
   can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
-  converged = (weights["e_min"] > 0) & (average_observable_entropy(view, config.r_e_cells) < weights["e_min"])
+  converged = ((weights["e_min"] > 0) &
+               (average_observable_entropy(view, config.r_e_cells) < weights["e_min"]))
 
   # Progress timeout: metres driven (straight lines between plans) since the belief last gained
   # a known cell.
@@ -747,8 +754,9 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   goal = jnp.stack([chosen // w, chosen % w]).astype(jnp.int32)
   cells, length_wp = extract_path(sp.pred, goal, config.path_capacity, source=robot.cell)
   look_at = base.unknown_neighbour(goal, view.unknown, view.occupied)
-  plan = base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32), goal=goal,
-                   look_at=look_at, valid=valid, gain=jnp.where(explore, gain[chosen], reexplore[chosen]),
+  plan = base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32),
+                   goal=goal, look_at=look_at, valid=valid,
+                   gain=jnp.where(explore, gain[chosen], reexplore[chosen]),
                    cost=sp.dist.ravel()[chosen] * config.res,
                    n_candidates=jnp.sum(candidates).astype(jnp.int32))
   return plan, memory

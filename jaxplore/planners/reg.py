@@ -226,7 +226,8 @@ def init_memory(ctx, params) -> Memory:
       adjacent=jnp.zeros((n, n), bool), parent=jnp.full((n,), -1, jnp.int32),
       count=jnp.int32(0), current=jnp.int32(-1), mode=jnp.int32(START),
       pending=jnp.zeros((b,), bool), turn=jnp.bool_(False), dest=jnp.zeros((2,), jnp.float32),
-      phi=jnp.float32(0), hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False), decisions=jnp.int32(0))
+      phi=jnp.float32(0), hop=jnp.int32(-1), tries=jnp.int32(0), overflow=jnp.bool_(False),
+      decisions=jnp.int32(0))
 
 
 def validate(weights, params, ctx) -> None:

@@ -14,8 +14,8 @@ and the RMSE statistic:
 
 Trajectories are a robot's keyframes at fixed capacity N: ``f32[N, 3]`` (x m, y m, θ rad) with a
 ``bool[N]`` validity mask that is a prefix (the rows past it are padding and change nothing: they
-may hold anything, NaN included). Every function is pure, of fixed shapes, ``vmap``- and ``jit``-able.
-No LAPACK call (batched LAPACK under ``vmap`` blocks multi-device CPU runs, see
+may hold anything, NaN included). Every function is pure, of fixed shapes, ``vmap``- and
+``jit``-able. No LAPACK call (batched LAPACK under ``vmap`` blocks multi-device CPU runs, see
 :mod:`jaxplore.linalg`): the 2-D alignment is closed form.
 """
 

@@ -398,8 +398,8 @@ def keyframe_observation(pose, scan, offsets, origin, res: float, shape, n_cross
 def rebuild(logodds, robot, graph: PoseGraph, ranges, offsets, origin, res: float, reachable,
             params, n_cross: int, whole_grid: bool):
   """Robot ``robot``'s belief (in the batch ``logodds``, f32[R, H, W]) re-integrated from its
-  keyframes' scans (``ranges``, f16[N, B]) at their poses. Returns ``(logodds, entropy, covered)``: the new belief and
-  its map entropy (nats) and count of reachable cells believed free."""
+  keyframes' scans (``ranges``, f16[N, B]) at their poses. Returns ``(logodds, entropy, covered)``:
+  the new belief and its map entropy (nats) and count of reachable cells believed free."""
   _, h, w = logodds.shape
   logodds = jax.lax.dynamic_update_index_in_dim(logodds, jnp.zeros((h, w), logodds.dtype), robot, 0)
 

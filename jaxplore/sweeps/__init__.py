@@ -38,7 +38,8 @@ from jaxplore.config import ConfigError
 from jaxplore.errors import check_writable
 from jaxplore.memory import MEMORY_FRACTION, fit_chunk
 from jaxplore.runspec import SHARED, RunSpec, merge_settings
-from jaxplore.sweeps import assemble, execute, schedule as schedules
+from jaxplore.sweeps import assemble, execute
+from jaxplore.sweeps import schedule as schedules
 from jaxplore.sweeps.assemble import sweep_table
 from jaxplore.sweeps.schedule import LEGACY_FILE, SCHEDULE_FILE, first_difference, read_schedule
 from jaxplore.sweeps.settings import SweepSpec, load_config, make_spec, parse_random_spec

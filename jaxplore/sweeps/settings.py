@@ -11,13 +11,24 @@ import dataclasses
 import hashlib
 import math
 import os
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
 from jaxplore.config import STATIC_SETTINGS, ConfigError
-from jaxplore.runspec import (AXES, RUN_ONLY, SHARED, TOML_KEYS, WORD_PARAMS, RunSpec, kind_of,
-                              number, read_toml, seed_value, settings_from_toml)
+from jaxplore.runspec import (
+  AXES,
+  RUN_ONLY,
+  SHARED,
+  TOML_KEYS,
+  WORD_PARAMS,
+  RunSpec,
+  kind_of,
+  number,
+  read_toml,
+  seed_value,
+  settings_from_toml,
+)
 
 DEFAULT_SEEDS = 8  # seeds per setting when none are given
 
@@ -376,4 +387,5 @@ def load_config(path) -> dict:
 
 __all__ = ["DEFAULT_SEEDS", "RandomRange", "SweepSpec", "WorldEntry", "f32", "load_config",
            "make_spec", "normalise_grid", "grid_value", "is_word_axis", "normalise_random",
-           "parse_random_spec", "random_samples", "seeds_of", "world_entry", "SWEEP_TOML_KEYS", "AXES"]
+           "parse_random_spec", "random_samples", "seeds_of", "world_entry", "SWEEP_TOML_KEYS",
+           "AXES"]
