@@ -54,8 +54,7 @@ from bench_accelerator import ResultsFile, _int_list  # noqa: E402
 from stage_times import median_call_s  # noqa: E402
 
 from jaxplore import driver, linalg, planning, sim  # noqa: E402
-from jaxplore.graph import batching  # noqa: E402
-from jaxplore.graph.dijkstra import extract_path, shortest_paths  # noqa: E402
+from jaxplore.graph.dijkstra import STRATEGY_BATCHING, extract_path  # noqa: E402
 from jaxplore.graph.tree import nearest_ancestor  # noqa: E402
 from jaxplore.maps import load_world  # noqa: E402
 from jaxplore.planners import get_planner, li2020  # noqa: E402
@@ -90,9 +89,8 @@ def parts(config, world):
   def solve(params, view, robot):
     weights = params.planner
     b_e, b_g = li2020.boundaries(view, weights["tau_e"])
-    return shortest_paths(li2020.edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]),
-                          robot.cell, max_sweeps=ctx.dijkstra_max_sweeps,
-                          tiles_after_rounds=ctx.dijkstra_tiles_after_rounds)
+    return ctx.shortest_paths(li2020.edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]),
+                              robot.cell)
 
   def geometry(params, robot, sp):
     return li2020.path_geometry(ctx, robot, params, sp.pred)
@@ -144,15 +142,13 @@ def parts_rows(config, world, params, state, chunk: int, repeats: int) -> list[d
   p = jax.tree.map(lambda x: x[robots], params)
   s = jax.tree.map(lambda x: x[robots], state)
   fn = parts(config, world)
-  method = "relaxation" if config.strategy == "lockstep" else "sweeps"
-  chunking = None if config.strategy == "lockstep" else config.plan_chunk
+  method = STRATEGY_BATCHING[config.strategy][1]  # the planners' contexts batch so
   rows = []
 
   def timed(name, function, *args, trips=None):
-    with batching(chunking, method):
-      jitted = jax.jit(jax.vmap(function))
-      first, median = median_call_s(jitted, *args, repeats=repeats)
-      out = jitted(*args)
+    jitted = jax.jit(jax.vmap(function))
+    first, median = median_call_s(jitted, *args, repeats=repeats)
+    out = jitted(*args)
     rows.append(dict(part=name, chunk=chunk, first_s=first, ms=median * 1e3,
                      trips=trips(out) if trips else ""))
     return out
@@ -172,10 +168,9 @@ def parts_rows(config, world, params, state, chunk: int, repeats: int) -> list[d
   keys = jax.random.split(jax.random.PRNGKey(0), chunk)
   timed("whole plan", fn["whole_plan"], p, views, robot, keys, s.memory)
   need = jnp.zeros(state.busy.shape, bool).at[robots].set(True)
-  with batching(chunking, method):
-    round_ = jax.jit(lambda prm, st: planning._plan_robots(config, world, prm, st, need, 0,
-                                                           chunk)[0])
-    first, median = median_call_s(round_, params, state, repeats=repeats)
+  round_ = jax.jit(lambda prm, st: planning._plan_robots(config, world, prm, st, need, 0,
+                                                         chunk)[0])
+  first, median = median_call_s(round_, params, state, repeats=repeats)
   rows.append(dict(part="planning round", chunk=chunk, first_s=first, ms=median * 1e3, trips=""))
   return rows
 

@@ -145,18 +145,17 @@ def _plan_where_needed_fixed_leftovers(engine, config, world, params, state):
   """``engine`` (``planning._plan_where_needed_lockstep``) with its whole-grid round after the
   window in fixed chunks of ``planning.LOCKSTEP_PLAN_CHUNK``, not by need."""
   from jaxplore import planning
-  from jaxplore.graph import batching
 
   if not planning.uses_window(config):
     return engine(config, world, params, state)
   need = planning.needs_plan(config, state)
   batch = need.shape[0]
-  with batching(None, "relaxation"):
-    state, certified = planning._plan_robots(config, world, params, state, need,
-                                             config.plan_window,
-                                             planning.lockstep_plan_chunk(config, batch))
-    return planning._plan_robots(config, world, params, state, need & ~certified, 0,
-                                 min(batch, planning.LOCKSTEP_PLAN_CHUNK))[0]
+  # config.strategy is lockstep: the planners' contexts solve shortest paths by relaxation
+  state, certified = planning._plan_robots(config, world, params, state, need,
+                                           config.plan_window,
+                                           planning.lockstep_plan_chunk(config, batch))
+  return planning._plan_robots(config, world, params, state, need & ~certified, 0,
+                               min(batch, planning.LOCKSTEP_PLAN_CHUNK))[0]
 
 
 def child(args) -> None:

@@ -226,7 +226,9 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES,
   import jax
 
   from jaxplore import sim
-  from jaxplore.planners import reg
+  from jaxplore.planners import get_planner
+
+  draw_memory = get_planner(sim_config.planner).memory_graph
 
   recorded = curves.groupby("robot").step.max()
   steps_recorded = np.asarray([int(recorded.get(r, 0)) for r in robots])
@@ -257,10 +259,10 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES,
       lengths[j] = 1 + len(rest)
     frame.update(waypoints=ahead, path_len=lengths, goal=np.asarray(state.goal))
     frame["planned"] = ~frame["done"] & (lengths > 1)
-    if isinstance(state.memory, reg.Memory):  # the REG family's exploration graph, drawn too
-      memory = jax.tree.map(np.asarray, state.memory)
-      frame["graph"] = [reg.exploration_graph(jax.tree.map(lambda x, j=j: x[j], memory),
-                                              sim_config.res, np.asarray(world.origin))
+    if draw_memory is not None:  # a graph the planner keeps (the REG family's), drawn too
+      arrays = results.memory_arrays(state.memory, len(robots))
+      frame["graph"] = [draw_memory({k: v[j] for k, v in arrays.items()}, sim_config.res,
+                                    np.asarray(world.origin))
                         for j in range(len(robots))]
     return frame
 

@@ -325,7 +325,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-  parser = _Parser(prog="jaxplore", description="Batched exploration and active-SLAM simulator: "
+  parser = _Parser(prog="jaxplore", epilog="--plugin FILE.py|MODULE (before or after the "
+                   "command, repeatable): load the planners a file or module registers (also "
+                   "$JAXPLORE_PLUGINS, and installed packages' 'jaxplore.planners' entry points).",
+                   description="Batched exploration and active-SLAM simulator: "
                    "run a batch of robots, sweep settings, list worlds and settings, redraw "
                    "figures, animate a run. 'jaxplore COMMAND --help' for each command.")
   sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -416,7 +419,32 @@ def build_parser() -> argparse.ArgumentParser:
   return parser
 
 
+def _take_plugins(argv) -> list[str]:
+  """``argv`` without its ``--plugin FILE_OR_MODULE`` options, whose values are added to the
+  planner plugins (:data:`jaxplore.planners.base.PLUGINS_ENV`; loaded when the registry is
+  first read, so ``--help`` lists their planners and sweep workers inherit them)."""
+  from jaxplore.planners.base import PLUGINS_ENV
+  argv, rest, plugins = list(sys.argv[1:] if argv is None else argv), [], []
+  i = 0
+  while i < len(argv):
+    name, eq, value = argv[i].partition("=")
+    if name == "--plugin":
+      if not eq:
+        if i + 1 >= len(argv):
+          raise SystemExit("jaxplore: error: --plugin needs a file or module")
+        value, i = argv[i + 1], i + 1
+      plugins.append(str(Path(value).resolve()) if value.endswith(".py") else value)
+    else:
+      rest.append(argv[i])
+    i += 1
+  if plugins:
+    known = [p for p in os.environ.get(PLUGINS_ENV, "").split(os.pathsep) if p]
+    os.environ[PLUGINS_ENV] = os.pathsep.join(known + plugins)
+  return rest
+
+
 def main(argv=None) -> int:
+  argv = _take_plugins(argv)
   parser = build_parser()
   args, extra = parser.parse_known_args(argv)
   if extra and args.command not in ("run", "sweep"):

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 
 from jaxplore import mapping
 from jaxplore.config import Params, SimConfig, window_margin
-from jaxplore.graph import batching, labels
+from jaxplore.graph import labels
 from jaxplore.planners import base as planners_base
 from jaxplore.planners import window as planning_window
 from jaxplore.robot import EXHAUSTED, State, planner_context, robot_view
@@ -322,8 +322,8 @@ def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params,
                                 ) -> State:
   """:func:`plan_where_needed` for an accelerator: the robots that need a plan are gathered in
   chunks (the last filled with copies of its own last robot), each chunk one set of kernels, its
-  shortest paths solved by relaxation (:func:`jaxplore.graph.batching`). The window round takes
-  the robots expected to plan at one step (``1 / replan_every`` of the batch, at least
+  shortest paths solved by relaxation (:data:`jaxplore.graph.STRATEGY_BATCHING`). The window
+  round takes the robots expected to plan at one step (``1 / replan_every`` of the batch, at least
   :data:`LOCKSTEP_PLAN_CHUNK`) as one chunk: a planner whose work is a long loop of small
   kernels (li2020's visible gains) pays per chunk, not per robot. The whole-grid round after it,
   for the few plans the window could not certify, takes chunks of :data:`LOCKSTEP_PLAN_CHUNK`,
@@ -336,13 +336,12 @@ def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params,
   need = needs_plan(config, state)
   batch = need.shape[0]
   per_step = lockstep_plan_chunk(config, batch)
-  with batching(None, "relaxation"):
-    if not uses_window(config):
-      return _plan_robots_by_need(config, world, params, state, need, per_step)[0]
-    state, certified = _plan_robots(config, world, params, state, need, config.plan_window,
-                                    per_step)
-    return _plan_robots_by_need(config, world, params, state, need & ~certified,
-                                min(batch, LOCKSTEP_PLAN_CHUNK))[0]
+  if not uses_window(config):
+    return _plan_robots_by_need(config, world, params, state, need, per_step)[0]
+  state, certified = _plan_robots(config, world, params, state, need, config.plan_window,
+                                  per_step)
+  return _plan_robots_by_need(config, world, params, state, need & ~certified,
+                              min(batch, LOCKSTEP_PLAN_CHUNK))[0]
 
 
 def plan_where_needed(config: SimConfig, world: World, params: Params, state: State) -> State:

@@ -3,7 +3,6 @@ them)."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from pathlib import Path
@@ -109,19 +108,28 @@ def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, lab
                     color=line.get_color(), lw=0)
 
 
-def saved_exploration_graph(run_dir, res: float, origin, robot: int = 0):
-  """Robot ``robot``'s exploration graph from a run folder's ``memory.npz`` (a planner of the
-  REG family keeps one; see :func:`jaxplore.planners.reg.exploration_graph`), or None."""
-  path = Path(run_dir) / "memory.npz"
-  if not path.is_file():
+def saved_memory_graph(run_dir, res: float, origin, robot: int = 0):
+  """Robot ``robot``'s memory graph (:attr:`jaxplore.planners.base.PlannerSpec.memory_graph`,
+  e.g. the REG family's exploration graph) from a run folder's ``memory.npz``, or None where the
+  run's planner draws none (or the folder holds no memory of it)."""
+  path, config = Path(run_dir) / "memory.npz", Path(run_dir) / "config.json"
+  if not (path.is_file() and config.is_file()):
+    return None
+  recorded = json.loads(config.read_text())
+  planner = (recorded.get("sim_config") or {}).get("planner", recorded.get("planner"))
+  from jaxplore.planners import planner_names
+  if not isinstance(planner, str) or planner not in planner_names():
+    return None
+  from jaxplore.planners import get_planner
+  draw = get_planner(planner).memory_graph
+  if draw is None:
     return None
   with np.load(path) as saved:
     arrays = {name: saved[name][robot] for name in saved.files}
-  from jaxplore.planners import reg
-  fields = [f.name for f in dataclasses.fields(reg.Memory)]
-  if any(name not in arrays for name in fields):
+  try:
+    return draw(arrays, res, origin)
+  except (KeyError, AttributeError, IndexError):  # a memory of another version's layout
     return None
-  return reg.exploration_graph(reg.Memory(**{name: arrays[name] for name in fields}), res, origin)
 
 
 def run_figures(run_dir) -> list[Path]:
@@ -148,10 +156,10 @@ def run_figures(run_dir) -> list[Path]:
   shown = tuple(range(min(4, maps["logodds"].shape[0])))
   belief_map(ax, maps["occupied"], maps["logodds"][0], float(maps["res"]), maps["origin"], curves,
              shown)
-  graph = saved_exploration_graph(run_dir, float(maps["res"]), maps["origin"])
+  graph = saved_memory_graph(run_dir, float(maps["res"]), maps["origin"])
   if graph is not None:
     exploration_graph(ax, graph.nodes, graph.edges, graph.lsr, graph.open, graph.current)
-    ax.set_title(f"belief of robot 0, trajectories, and robot 0's exploration graph "
+    ax.set_title(f"belief of robot 0, trajectories, and robot 0's planner's graph "
                  f"({len(graph.nodes)} nodes{', capacity reached' if graph.overflow else ''})",
                  fontsize=9)
   else:

@@ -52,3 +52,65 @@ def test_the_readme_python_example_runs_as_written(tmp_path, monkeypatch, capsys
   episodes = namespace["result"].episodes
   assert len(episodes) == 2 and set(episodes["reason"]) <= {"complete", "exhausted", "timeout"}
   assert "robot_steps_per_s" in capsys.readouterr().out
+
+
+def _tutorial_planner(tmp_path) -> Path:
+  """docs/add-a-planner.md's planner, saved as the page says."""
+  page = (ROOT / "docs" / "add-a-planner.md").read_text(encoding="utf-8")
+  path = tmp_path / "my_planner.py"
+  path.write_text(re.search(r"```python\n(.*?)```", page, re.S).group(1))
+  return path
+
+
+def test_the_tutorial_planner_is_a_plugin_the_cli_lists_and_checks(tmp_path, monkeypatch, capsys):
+  """The page's planner, from a user's file: ``--plugin`` registers it, ``run --help`` and
+  ``jaxplore settings`` list it and its weight, and a weight out of its declared range is
+  refused before compute."""
+  from jaxplore import cli
+  from jaxplore.config import ConfigError
+  from jaxplore.planners import base
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+  path = _tutorial_planner(tmp_path)
+  monkeypatch.delenv(base.PLUGINS_ENV, raising=False)
+  try:
+    assert cli.main(["--plugin", str(path), "settings", "--planner", "far_frontier"]) == 0
+    out = capsys.readouterr().out
+    assert "planner far_frontier:" in out and "reach_m" in out and "> 0" in out
+    with pytest.raises(SystemExit):
+      cli.main(["run", "--help"])
+    assert "far_frontier" in capsys.readouterr().out
+    with pytest.raises(ConfigError, match="'far_frontier': weight reach_m must be > 0, got -1"):
+      resolve(RunSpec.create(world="lab", planner="far_frontier", robots=1, max_steps=5,
+                             params={"reach_m": -1.0}))
+  finally:
+    base.unregister("far_frontier")
+    base._loaded_plugins.clear()
+  (tmp_path / "broken.py").write_text("raise RuntimeError('not a planner')\n")
+  monkeypatch.setenv(base.PLUGINS_ENV, str(tmp_path / "broken.py"))
+  try:
+    with pytest.raises(ConfigError, match="broken.py' could not be loaded: RuntimeError"):
+      base.load_plugins()
+  finally:
+    base._loaded_plugins.clear()
+
+
+@pytest.mark.slow  # a run and the conformance tests of one planner (~2 min on 2 cores)
+def test_the_tutorial_planner_runs_and_passes_the_conformance_tests(tmp_path):
+  """The page's commands as written: ``jaxplore --plugin my_planner.py run`` and the
+  conformance tests of ``far_frontier`` with ``JAXPLORE_PLUGINS``."""
+  path = _tutorial_planner(tmp_path)
+  run = subprocess.run(
+      [sys.executable, "-m", "jaxplore", "--plugin", str(path), "run", "--planner",
+       "far_frontier", "--robots", "2", "--max-steps", "60", "--reach-m", "5", "--world", "lab",
+       "--no-progress", "--devices", "1"], cwd=tmp_path, capture_output=True, text=True,
+      timeout=600)
+  assert run.returncode == 0, run.stdout + run.stderr
+  assert "robot-steps/s" in run.stdout
+  check = subprocess.run(
+      [sys.executable, "-m", "pytest", "-q", "-o", "addopts=", "-p", "no:cacheprovider",
+       str(ROOT / "tests" / "planners" / "test_conformance.py"), "-k", "far_frontier"],
+      cwd=ROOT, capture_output=True, text=True, timeout=900,
+      env={**os.environ, "JAXPLORE_PLUGINS": str(path)})
+  assert check.returncode == 0, check.stdout[-3000:] + check.stderr[-3000:]
+  assert re.search(r"\b[1-9]\d* passed", check.stdout), check.stdout[-500:]

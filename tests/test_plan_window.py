@@ -11,10 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplore import planning, sim
+from jaxplore import frontiers, planning, sim
 from jaxplore.config import auto_plan_window, config_for, make_params, plan_reach_cells
 from jaxplore.maps import generate
-from jaxplore.planners import base, frontier
+from jaxplore.planners import base
 
 ROBOTS = 8
 WINDOW = 64
@@ -46,7 +46,7 @@ def full_and_window_plans(config, world, params, states, window):
                                             robot, origin, key)
     view = sim.belief_view(config, p, s, robot.cell)
     node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
-    dist, _ = frontier.reachable_paths(config, view, robot, node_cost)
+    dist, _ = frontiers.reachable_paths(config, view, robot, node_cost)
     return full, local, certified, view, dist
 
   return jax.jit(jax.vmap(both))(params, states)

@@ -12,7 +12,7 @@ import pytest
 
 import jaxplore
 from conftest import box_world
-from jaxplore import cli, results, runner, sweeps
+from jaxplore import cli, plot, results, runner, sweeps
 from jaxplore.config import ConfigError
 from jaxplore.planners import base, frontier
 from jaxplore.resolve import resolve
@@ -102,11 +102,20 @@ def _plan_probe(ctx, view, robot, params, key, memory):
   return plan, dict(memory, plans=memory["plans"] + ctx.settings.plan_increment)
 
 
+def _plans_as_graph(arrays, res, origin):
+  """The probe's memory drawn as a graph: one node per plan counted, in a row."""
+  count = int(arrays["plans"])
+  nodes = np.asarray(origin, np.float32) + res * np.stack([np.arange(count), np.zeros(count)], -1)
+  return types.SimpleNamespace(nodes=nodes.astype(np.float32), edges=np.zeros((0, 2), np.int32),
+                               lsr=None, open=None, current=0, overflow=False)
+
+
 @pytest.fixture(scope="module")
 def probe():
-  """Nearest frontier that counts its plans (times a static setting) in a per-robot memory."""
+  """Nearest frontier that counts its plans (times a static setting) in a per-robot memory, and
+  draws that memory as a graph."""
   base.register("host_probe", summary="test probe", settings=ProbeSettings(),
-                init_memory=_init_memory)(_plan_probe)
+                init_memory=_init_memory, memory_graph=_plans_as_graph)(_plan_probe)
   yield "host_probe"
   base.unregister("host_probe")
 
@@ -132,6 +141,11 @@ def test_a_planners_memory_and_settings_reach_the_results_folder(probe, tmp_path
   with np.load(out / "memory.npz") as saved:
     assert saved.files == ["plans"]
     np.testing.assert_array_equal(saved["plans"], plans[:4])  # the first robots
+  # the planner's own drawing of its memory reaches the map figure (plot names no planner)
+  graph = plot.saved_memory_graph(out, resolved.grid.res, resolved.grid.origin, robot=2)
+  assert len(graph.nodes) == 6 and graph.nodes[1, 0] == np.float32(resolved.grid.origin[0]
+                                                                    + resolved.grid.res)
+  assert plot.saved_memory_graph(out, 0.1, (0, 0), robot=0).nodes.shape == (0, 2)
   # a planner without memory (its memory is an empty tree) leaves none, nor an earlier one
   results.write_run(out, described, {}, pd.DataFrame({"robot": [0]}), curves, resolved.grid,
                     types.SimpleNamespace(logodds=state.logodds, memory=()))

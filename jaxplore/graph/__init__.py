@@ -1,8 +1,8 @@
 """Grid graph algorithms: shortest paths with predecessors, and path extraction."""
 
 from jaxplore.graph.dijkstra import (
+  STRATEGY_BATCHING,
   ShortestPaths,
-  batching,
   default_max_sweeps,
   extract_path,
   shortest_paths,
@@ -10,8 +10,8 @@ from jaxplore.graph.dijkstra import (
 )
 
 __all__ = [
+    "STRATEGY_BATCHING",
     "ShortestPaths",
-    "batching",
     "default_max_sweeps",
     "extract_path",
     "shortest_paths",

@@ -69,7 +69,6 @@ Performance notes (XLA:CPU, measured by ``experiments/bench_dijkstra.py``):
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 from typing import NamedTuple
@@ -114,29 +113,14 @@ TILES_PER_STEP = 2
 # while loop on an accelerator, a round trip to the host.
 RELAXATION_PASSES_PER_CHECK = 16
 
-# How ``vmap`` batches ``shortest_paths``: grids per chunk (None: the whole batch at once) and
-# the method; set at trace time by ``batching``.
-_batching: list[tuple[int | None, str]] = [(DEFAULT_CHUNK, "sweeps")]
-
-
-@contextlib.contextmanager
-def batching(chunk: int | None, method: str = "sweeps"):
-  """Within the context, ``vmap`` of :func:`shortest_paths` traces chunks of ``chunk`` grids
-  (None: the whole batch as one chunk, e.g. on a GPU, where a loop over chunks of 4 would be a
-  chain of small kernels as long as the batch), solved by ``method`` (:data:`METHODS`; the
-  distances and predecessors are the same either way).
-
-  A trace-time setting: it applies to what is traced inside the context, so a jitted caller
-  that enters it must key its own cache on it (the engine's ``SimConfig.strategy`` does).
-  """
-  if method not in METHODS:
-    raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-  previous = _batching[0]
-  _batching[0] = (chunk, method)
-  try:
-    yield
-  finally:
-    _batching[0] = previous
+# How ``vmap`` of :func:`shortest_paths` batches under each execution strategy
+# (``SimConfig.strategy``): grids per chunk (None: the whole batch at once) and the method. On a
+# CPU, chunks of 4 by cone sweeping; on an accelerator the whole batch by relaxation, where a
+# loop over chunks of 4 would be a chain of small kernels as long as the batch.
+STRATEGY_BATCHING: dict[str, tuple[int | None, str]] = {
+    "per_robot": (DEFAULT_CHUNK, "sweeps"),
+    "lockstep": (None, "relaxation"),
+}
 
 
 class ShortestPaths(NamedTuple):
@@ -568,7 +552,8 @@ def _solve_in_chunks(node_cost, source, chunk: int, max_sweeps: int, method: str
 
 
 @functools.cache
-def _single_grid_solver(max_sweeps: int, tiles_after_rounds: int):
+def _single_grid_solver(max_sweeps: int, tiles_after_rounds: int, vmap_chunk: int | None,
+                        vmap_method: str):
   """``shortest_paths`` for one grid, whose ``vmap`` becomes ``shortest_paths_batched``."""
 
   @jax.custom_batching.custom_vmap
@@ -584,9 +569,8 @@ def _single_grid_solver(max_sweeps: int, tiles_after_rounds: int):
       node_cost = jnp.broadcast_to(node_cost, (axis_size,) + node_cost.shape)
     if not source_batched:
       source = jnp.broadcast_to(source, (axis_size,) + source.shape)
-    chunk, method = _batching[0]
-    result = shortest_paths_batched(node_cost, source, chunk=chunk or axis_size,
-                                    max_sweeps=max_sweeps, method=method,
+    result = shortest_paths_batched(node_cost, source, chunk=vmap_chunk or axis_size,
+                                    max_sweeps=max_sweeps, method=vmap_method,
                                     tiles_after_rounds=tiles_after_rounds)
     return result, ShortestPaths(True, True, True, True)
 
@@ -599,12 +583,14 @@ def shortest_paths(
     *,
     max_sweeps: int | None = None,
     tiles_after_rounds: int = TILES_AFTER_ROUNDS,
+    vmap_chunk: int | None = DEFAULT_CHUNK,
+    vmap_method: str = "sweeps",
 ) -> ShortestPaths:
   """Shortest paths from one source cell over an 8-connected grid.
 
   Written for one grid; ``jax.vmap`` of it runs ``shortest_paths_batched`` (chunks of
-  ``DEFAULT_CHUNK`` grids by cone sweeping, or as :func:`batching` says), which is several times
-  faster on CPU than batching the loops.
+  ``vmap_chunk`` grids solved by ``vmap_method``; :data:`STRATEGY_BATCHING` gives them per
+  execution strategy), which is several times faster on CPU than batching the loops.
 
   Args:
     node_cost: f32[H, W]; the cost of entering each cell per unit step, >= 0 (zeros allowed);
@@ -614,6 +600,9 @@ def shortest_paths(
       own cost, so a robot standing on a blocked cell still plans from it.
     max_sweeps: static bound on rounds of the 4 sweeps; None = ``default_max_sweeps(H, W)``.
     tiles_after_rounds: static; as in :func:`shortest_paths_batched` (0 = never).
+    vmap_chunk: static; grids per chunk under ``vmap`` (None: the whole batch as one chunk).
+    vmap_method: static; how a chunk is solved under ``vmap`` (:data:`METHODS`; the distances
+      and predecessors are the same either way).
 
   Returns:
     A ``ShortestPaths`` with dist f32[H, W], pred i32[H, W], sweeps i32[], converged bool[].
@@ -623,7 +612,10 @@ def shortest_paths(
   if max_sweeps is None:
     max_sweeps = default_max_sweeps(*node_cost.shape)
   _check_tiles_after_rounds(tiles_after_rounds)
-  return _single_grid_solver(int(max_sweeps), int(tiles_after_rounds))(node_cost, source)
+  if vmap_method not in METHODS:
+    raise ValueError(f"method must be one of {METHODS}, got {vmap_method!r}")
+  return _single_grid_solver(int(max_sweeps), int(tiles_after_rounds), vmap_chunk,
+                             vmap_method)(node_cost, source)
 
 
 @functools.partial(jax.jit, static_argnames="capacity")

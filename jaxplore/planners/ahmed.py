@@ -16,9 +16,9 @@ bandwidth; here frontier cells are grouped by square tiles of ``cluster_m`` = 1.
 (:func:`tile_clusters`, the ``max_candidates`` fullest tiles), which likewise splits a long
 frontier into pieces of about the bandwidth (whole 8-connected clusters would put the centroid of
 a room-sized frontier in the middle of the room). Each group's goal is its centroid cell or its
-nearest reachable frontier cell (:func:`godoy2023.cluster_goals`), dropped when in the inflated
-obstacle band, when the unknown area within ``filter_radius`` is below ``min_unknown_area``, or
-when within ``min_robot_dist`` of the robot.
+nearest reachable frontier cell (:func:`jaxplore.frontiers.cluster_goals`), dropped when in the
+inflated obstacle band, when the unknown area within ``filter_radius`` is below
+``min_unknown_area``, or when within ``min_robot_dist`` of the robot.
 
 Path entropy (Eq 4–5): the cells of the 4-connected digital line from the robot's cell to the
 candidate's (each step one row or one column, the cell nearest the segment; the paper draws a
@@ -65,10 +65,10 @@ import numpy as np
 
 from jaxplore import motion, posegraph
 from jaxplore.errors import ConfigError, shown
+from jaxplore.frontiers import cluster_goals, plan_to, reachable_paths, unknown_neighbour
 from jaxplore.graph import labels
 from jaxplore.graph.dijkstra import extract_path
-from jaxplore.planners import base, godoy2023
-from jaxplore.planners.frontier import plan_to, reachable_paths
+from jaxplore.planners import base
 from jaxplore.settings import declared, setting
 
 
@@ -368,7 +368,7 @@ def _score(ctx, view, robot, w, scan_match_sigma, key, graph, settings, with_ent
   node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
   dist, pred = reachable_paths(ctx, view, robot, node_cost)
   tile = max(1, int(round(settings.cluster_m / res)))
-  found = godoy2023.cluster_goals(ctx, view, robot, dist,
+  found = cluster_goals(ctx, view, robot, dist,
                                   tile_clusters(view.frontier, tile, settings.max_candidates))
   window = int(math.ceil(settings.disc_m / res - 1e-6))
   masks = jnp.stack([view.unknown, view.occupied])
@@ -437,7 +437,7 @@ def _plan(ctx, view, robot, w, scan_match_sigma, key, graph, with_entropy, setti
   valid = jnp.isfinite(utility[best])
   goal = found.goal[best]
   cells, length, _ = plan_to(ctx, view, robot, pred, goal, valid)
-  look_at = base.unknown_neighbour(found.look_at[best], view.unknown, view.occupied)
+  look_at = unknown_neighbour(found.look_at[best], view.unknown, view.occupied)
   plan = base.Plan(waypoints=cells, length=length, goal=goal, look_at=look_at, valid=valid,
                    gain=jnp.where(valid, utility[best], 0.0).astype(jnp.float32),
                    cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),

@@ -25,11 +25,10 @@ from collections.abc import Callable
 from typing import Any
 
 import chex
-import jax
 import jax.numpy as jnp
 
-from jaxplore import mapping
 from jaxplore.config import PARAM_FIELDS, ConfigError
+from jaxplore.graph.dijkstra import STRATEGY_BATCHING, ShortestPaths, shortest_paths
 from jaxplore.settings import Setting, declared
 
 
@@ -63,6 +62,14 @@ class PlannerContext:
   r_e_cells: float = 0.0
   settings: Any = None
   strategy: str = "per_robot"
+
+  def shortest_paths(self, node_cost, source) -> ShortestPaths:
+    """:func:`jaxplore.graph.shortest_paths` from ``source`` with the run's solver bounds, batched
+    under ``vmap`` as the execution strategy wants (:data:`jaxplore.graph.STRATEGY_BATCHING`)."""
+    chunk, method = STRATEGY_BATCHING[self.strategy]
+    return shortest_paths(node_cost, source, max_sweeps=self.dijkstra_max_sweeps,
+                          tiles_after_rounds=self.dijkstra_tiles_after_rounds,
+                          vmap_chunk=chunk, vmap_method=method)
 
 
 @chex.dataclass(frozen=True)
@@ -167,6 +174,12 @@ class PlannerSpec:
       (:mod:`jaxplore.planners.window`).
     preset: the sensor/robot preset of the planner's paper (:data:`jaxplore.config.PRESETS`),
       used when a run names none; None: the project's default.
+    memory_graph: ``memory_graph(arrays, res, origin) -> graph`` for a planner whose memory
+      holds a graph worth drawing over the map (the REG family's exploration graph): ``arrays``
+      one robot's memory leaves by their path in the tree (:func:`jaxplore.results.
+      memory_arrays`' names), the graph an object with ``nodes`` f32[N, 2] (world m), ``edges``
+      i32[E, 2], ``lsr`` (rays per node, or None), ``open`` (bool per ray, or None), ``current``
+      and ``overflow``. ``jaxplore plot`` and ``jaxplore animate`` draw it.
   """
 
   name: str
@@ -184,6 +197,7 @@ class PlannerSpec:
   blacklist_on_arrival: bool = False
   windowed: bool = False
   preset: str | None = None
+  memory_graph: Callable | None = None
 
   @property
   def has_memory(self) -> bool:
@@ -305,7 +319,8 @@ def register(name: str, defaults=None, summary: str = "", *, settings=None,
              needs_pose_graph: bool = False, init_memory: Callable | None = None,
              commits: bool = False,
              step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
-             windowed: bool = False, preset: str | None = None):
+             windowed: bool = False, preset: str | None = None,
+             memory_graph: Callable | None = None):
   """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`).
 
   ``defaults``: the traced weights, a dict name -> default, or a dataclass whose fields declare
@@ -332,7 +347,7 @@ def register(name: str, defaults=None, summary: str = "", *, settings=None,
         validate=validate, needs_entropy_map=needs_entropy_map, needs_pose_graph=needs_pose_graph,
         init_memory=init_memory,
         commits=commits, step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival,
-        windowed=windowed, preset=preset)
+        windowed=windowed, preset=preset, memory_graph=memory_graph)
     return fn
 
   return wrap
@@ -347,9 +362,59 @@ def require_at_least_one(planner: str, settings, names) -> None:
                       f"plan's arrays)")
 
 
+# Planners from outside the package: os.pathsep-separated .py files or module names, imported
+# (once) before the registry is first read; ``jaxplore --plugin FILE`` adds to it.
+PLUGINS_ENV = "JAXPLORE_PLUGINS"
+# Installed packages offer planners under this entry-point group (the module is imported).
+ENTRY_POINT_GROUP = "jaxplore.planners"
+_loaded_plugins: set[str] = set()
+_entry_points: list[tuple] = []
+
+
+def load_plugins() -> None:
+  """Imports the planners of :data:`PLUGINS_ENV` and of the :data:`ENTRY_POINT_GROUP` entry
+  points not imported yet; their ``@register`` lines add them to the registry. A file or module
+  that cannot be imported is a :class:`ConfigError` naming it."""
+  import importlib
+  import importlib.metadata
+  import importlib.util
+  import os
+  import sys
+  from pathlib import Path
+  sources = [s for s in os.environ.get(PLUGINS_ENV, "").split(os.pathsep) if s.strip()]
+  if not _entry_points:  # read once per process: the installed packages do not change
+    _entry_points.append(tuple(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)))
+  entry_points = _entry_points[0]
+  sources += [f"entry point {ep.name}={ep.value}" for ep in entry_points]
+  for source in sources:
+    if source in _loaded_plugins:
+      continue
+    _loaded_plugins.add(source)
+    try:
+      if source.startswith("entry point "):
+        next(ep for ep in entry_points if source.endswith(f"{ep.name}={ep.value}")).load()
+      elif source.endswith(".py"):
+        path = Path(source).expanduser().resolve()
+        if not path.is_file():
+          raise FileNotFoundError(f"no file {str(path)!r}")
+        name = f"jaxplore_plugin_{path.stem}"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+      else:
+        importlib.import_module(source)
+    except ConfigError:
+      raise
+    except Exception as err:  # whatever the user's code raises: name the plugin, not a traceback
+      raise ConfigError(f"planner plugin {source!r} could not be loaded: "
+                        f"{type(err).__name__}: {err}") from err
+
+
 def planner_preset(name) -> str | None:
   """The preset a registered planner brings (:attr:`PlannerSpec.preset`); None for an unknown
   name (refused later, where the planner is looked up)."""
+  load_plugins()
   spec = _REGISTRY.get(name) if isinstance(name, str) else None
   return None if spec is None else spec.preset
 
@@ -361,11 +426,14 @@ def unregister(name: str) -> None:
 
 def get_planner(name: str) -> PlannerSpec:
   if name not in _REGISTRY:
+    load_plugins()
+  if name not in _REGISTRY:
     raise ConfigError(f"unknown planner {name!r}; valid planners: {', '.join(sorted(_REGISTRY))}")
   return _REGISTRY[name]
 
 
 def planner_names() -> list[str]:
+  load_plugins()
   return sorted(_REGISTRY)
 
 
@@ -374,28 +442,3 @@ def no_plan(capacity: int, robot: RobotView) -> Plan:
   return Plan(waypoints=jnp.broadcast_to(robot.cell, (capacity, 2)).astype(jnp.int32),
               length=jnp.int32(0), goal=robot.cell, look_at=robot.cell, valid=jnp.bool_(False),
               gain=jnp.float32(0), cost=jnp.float32(jnp.inf), n_candidates=jnp.int32(0))
-
-
-def unknown_neighbour(cell, unknown, occupied):
-  """The first 8-neighbour of ``cell`` (in ``mapping.NEIGHBOURS_8`` order) inside the grid that is
-  unknown and not sealed off by two occupied cells, else ``cell``.
-
-  Used as a look-at point: facing it lets a narrow field of view observe what made ``cell`` a
-  frontier.
-  """
-  h, w = unknown.shape
-  inside = (cell[0] >= 0) & (cell[0] < h) & (cell[1] >= 0) & (cell[1] < w)
-  # The 3 x 3 cells around ``cell``, outside the grid not unknown and occupied. (Indexing the
-  # grids cell by cell wrapped a neighbour at row or column -1 round to the far border.)
-  patch = lambda grid, fill: jax.lax.dynamic_slice(
-      jnp.pad(grid, 1, constant_values=fill), (cell[0], cell[1]), (3, 3))
-  unknown, occupied = patch(unknown, False), patch(occupied, True)
-  ok = []
-  for di, dj in mapping.NEIGHBOURS_8:
-    open_ = unknown[1 + di, 1 + dj]
-    if di != 0 and dj != 0:
-      open_ = open_ & ~(occupied[1 + di, 1] & occupied[1, 1 + dj])
-    ok.append(open_)
-  ok = jnp.stack(ok) & inside
-  step = jnp.asarray(mapping.NEIGHBOURS_8, jnp.int32)[jnp.argmax(ok)]
-  return jnp.where(jnp.any(ok), cell + step, cell).astype(cell.dtype)

@@ -14,32 +14,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxplore import reductions
-from jaxplore.graph.dijkstra import extract_path, shortest_paths
-from jaxplore.graph.extend import extend_into
+from jaxplore.frontiers import plan_to, reachable_paths
 from jaxplore.planners import base
-
-
-def reachable_paths(config, view: base.BeliefView, robot: base.RobotView, node_cost):
-  """One Dijkstra from the robot over traversable cells, extended into the other free cells.
-
-  Returns (dist in metres f32[H, W], pred i32[H, W]).
-  """
-  sp = shortest_paths(node_cost, robot.cell, max_sweeps=config.dijkstra_max_sweeps,
-                      tiles_after_rounds=config.dijkstra_tiles_after_rounds)
-  dist, pred = extend_into(sp.dist, sp.pred, view.free & ~view.traversable,
-                           config.max_inflation_cells + 1)
-  return dist * config.res, pred
-
-
-def plan_to(config, view: base.BeliefView, robot: base.RobotView, pred, goal, valid):
-  """Waypoints from the robot to ``goal``, cut before the first non-traversable cell."""
-  cells, length = extract_path(pred, goal, config.path_capacity, source=robot.cell)
-  on_free_ground = view.traversable[cells[:, 0], cells[:, 1]]
-  index = jnp.arange(config.path_capacity)
-  blocked_at = jnp.min(jnp.where((index >= 1) & ~on_free_ground, index, config.path_capacity))
-  length = jnp.where(valid, jnp.minimum(length, blocked_at), 0)
-  look_at = base.unknown_neighbour(goal, view.unknown, view.occupied)
-  return cells, length.astype(jnp.int32), look_at
 
 
 @base.register("nearest_frontier", summary="go to the frontier cell with the smallest path cost",

@@ -69,9 +69,15 @@ import jax
 import jax.numpy as jnp
 
 from jaxplore import mapping
+from jaxplore.frontiers import (
+  Candidates,
+  cluster_goals,
+  plan_to,
+  reachable_paths,
+  unknown_neighbour,
+)
 from jaxplore.graph import labels
 from jaxplore.planners import base
-from jaxplore.planners.frontier import plan_to, reachable_paths
 from jaxplore.settings import setting
 
 # Frontier clusters scored per planning round; smaller clusters beyond this many are ignored.
@@ -116,27 +122,6 @@ FRT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(FrtWeights)}
 IG_DEFAULTS = {f.name: f.default for f in dataclasses.fields(IgWeights)}
 
 
-class Candidates(NamedTuple):
-  """One candidate goal per frontier cluster.
-
-  Attributes:
-    clusters: the frontier clusters (:class:`jaxplore.graph.labels.Clusters`, K slots).
-    goal: i32[K, 2] the cell to drive to (centroid or nearest reachable cluster cell).
-    look_at: i32[K, 2] the cluster cell nearest to the centroid that the robot can reach (or
-      the goal), whose unknown neighbour the robot faces on arrival.
-    valid: bool[K] the cluster has a candidate goal (and is at least ``min_frontier_size`` long).
-    distance: f32[K] Euclidean distance robot → goal, m.
-    nearest: f32[K] Euclidean distance robot → the cluster's nearest cell, m.
-  """
-
-  clusters: labels.Clusters
-  goal: jax.Array
-  look_at: jax.Array
-  valid: jax.Array
-  distance: jax.Array
-  nearest: jax.Array
-
-
 def _weights(params, defaults: dict) -> dict:
   return {name: params.planner.get(name, value) for name, value in defaults.items()}
 
@@ -154,40 +139,6 @@ def frontier_candidates(config, view: base.BeliefView, robot: base.RobotView, di
   """
   return cluster_goals(config, view, robot, dist, labels.clusters(view.frontier, MAX_CLUSTERS),
                        min_frontier_size)
-
-
-def cluster_goals(config, view: base.BeliefView, robot: base.RobotView, dist,
-                  found: labels.Clusters, min_frontier_size=0.0) -> Candidates:
-  """Each group of frontier cells' goal: its centroid cell if the robot can stand there, else its
-  cell nearest the centroid that the Dijkstra reaches and the blacklist allows; groups shorter
-  than ``min_frontier_size`` metres (cells x res) are no candidates."""
-  height, width = view.frontier.shape
-  slots = found.size.shape[0]
-  reachable = jnp.isfinite(dist) & ~view.blacklist
-
-  centroid_cell = jnp.clip(jnp.round(found.centroid).astype(jnp.int32), 0,
-                           jnp.array([[height - 1, width - 1]], jnp.int32))
-  centroid_ok = (view.traversable & reachable)[centroid_cell[:, 0], centroid_cell[:, 1]]
-
-  eligible = (found.ids >= 0) & reachable
-  nearest_flat = labels.nearest_to_centroid(found, eligible)
-  has_eligible = nearest_flat < height * width
-  nearest_cell = jnp.stack([nearest_flat // width, nearest_flat % width], axis=-1).astype(jnp.int32)
-
-  goal = jnp.where(centroid_ok[:, None], centroid_cell, nearest_cell)
-  look_at = jnp.where(has_eligible[:, None], nearest_cell, goal)
-  long_enough = found.size.astype(jnp.float32) * config.res >= min_frontier_size - 1e-6
-  valid = found.valid & (centroid_ok | has_eligible) & long_enough
-  offset = (goal - robot.cell[None, :]).astype(jnp.float32)
-  distance = jnp.sqrt(jnp.sum(offset * offset, axis=-1)) * config.res
-  # The authors' code measures d to the frontier's cell nearest to the robot (any of its cells).
-  rows = jax.lax.broadcasted_iota(jnp.int32, (height, width), 0)
-  cols = jax.lax.broadcasted_iota(jnp.int32, (height, width), 1)
-  to_robot = ((rows - robot.cell[0]) ** 2 + (cols - robot.cell[1]) ** 2).astype(jnp.float32)
-  member = jnp.where(found.ids >= 0, found.ids, slots).ravel()
-  nearest = jnp.sqrt(jax.ops.segment_min(to_robot.ravel(), member, num_segments=slots + 1)[:slots])
-  return Candidates(clusters=found, goal=goal, look_at=look_at, valid=valid, distance=distance,
-                    nearest=jnp.where(found.valid, nearest, jnp.inf) * config.res)
 
 
 def expected_occupancy(distance, radius_cells):
@@ -257,7 +208,7 @@ def _plan_lowest_cost(config, view, robot, dist, pred, candidates: Candidates, c
   valid = jnp.isfinite(score[best])
   goal = candidates.goal[best]
   cells, length, _ = plan_to(config, view, robot, pred, goal, valid)
-  look_at = base.unknown_neighbour(candidates.look_at[best], view.unknown, view.occupied)
+  look_at = unknown_neighbour(candidates.look_at[best], view.unknown, view.occupied)
   return base.Plan(waypoints=cells, length=length, goal=goal, look_at=look_at, valid=valid,
                    gain=jnp.where(valid, -score[best], 0.0).astype(jnp.float32),
                    cost=jnp.where(valid, dist[goal[0], goal[1]], jnp.inf).astype(jnp.float32),

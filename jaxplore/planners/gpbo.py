@@ -59,9 +59,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxplore import gp, mapping, sensor, virtual_scan
+from jaxplore.frontiers import plan_to, reachable_paths
 from jaxplore.graph import labels
 from jaxplore.planners import base
-from jaxplore.planners.frontier import plan_to, reachable_paths
 from jaxplore.settings import setting
 
 

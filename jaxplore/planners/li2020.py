@@ -59,9 +59,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import linalg, mapping, reductions
+from jaxplore import frontiers, linalg, mapping, reductions
 from jaxplore.errors import ConfigError, shown
-from jaxplore.graph.dijkstra import extract_path, shortest_paths
+from jaxplore.graph.dijkstra import extract_path
 from jaxplore.graph.tree import nearest_ancestor, path_sums
 from jaxplore.planners import base
 from jaxplore.settings import setting
@@ -686,9 +686,8 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   settings = config.settings
   h, w = config.height, config.width
   b_e, b_g = boundaries(view, weights["tau_e"])
-  sp = shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]), robot.cell,
-                      max_sweeps=config.dijkstra_max_sweeps,
-                      tiles_after_rounds=config.dijkstra_tiles_after_rounds)
+  sp = config.shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]),
+                             robot.cell)
   reachable = jnp.isfinite(sp.dist).ravel()
   geometry, cov, _ = path_geometry(config, robot, params, sp.pred)
   root = robot.cell[0] * w + robot.cell[1]
@@ -753,7 +752,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   valid = (explore | can_fallback) & ~converged & ~stuck
   goal = jnp.stack([chosen // w, chosen % w]).astype(jnp.int32)
   cells, length_wp = extract_path(sp.pred, goal, config.path_capacity, source=robot.cell)
-  look_at = base.unknown_neighbour(goal, view.unknown, view.occupied)
+  look_at = frontiers.unknown_neighbour(goal, view.unknown, view.occupied)
   plan = base.Plan(waypoints=cells, length=jnp.where(valid, length_wp, 0).astype(jnp.int32),
                    goal=goal, look_at=look_at, valid=valid,
                    gain=jnp.where(explore, gain[chosen], reexplore[chosen]),

@@ -86,6 +86,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 
 import chex
 import jax
@@ -93,10 +94,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplore.errors import ConfigError, shown
+from jaxplore.frontiers import plan_to, reachable_paths
 from jaxplore.graph import node_graph
 from jaxplore.planners import base
 from jaxplore.planners import reg_kernels as K
-from jaxplore.planners.frontier import plan_to, reachable_paths
 from jaxplore.settings import setting
 
 START, EXPLORE, TRAVEL, DONE = 0, 1, 2, 3
@@ -654,8 +655,60 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
 
 SETTINGS = Settings()
 # Their LSR radius R is the sensor's range: Toriz & Sánchez's 4 m lidar is theirs.
+@dataclasses.dataclass(frozen=True)
+class ExplorationGraph:
+  """One robot's exploration graph in metres (host side, NumPy), for tables and figures.
+
+  Attributes:
+    nodes: f32[n, 2] node positions (x, y), m.
+    parent: i32[n] the node each node was reached from (-1 for node 0).
+    edges: i32[E, 2] node pairs (i < j) joined by an edge.
+    lsr: f32[n, B, 2] the LSR polygons: the end of every bin's central ray, m.
+    open: bool[n, B] bins still on a node's frontier; obstacle: bool[n, B] bins whose ray
+      stops on an occupied cell.
+    current: the node the robot is at (or last left); mode: its mode name.
+    overflow: the node capacity was reached and exploration stopped early.
+  """
+
+  nodes: np.ndarray
+  parent: np.ndarray
+  edges: np.ndarray
+  lsr: np.ndarray
+  open: np.ndarray
+  obstacle: np.ndarray
+  current: int
+  mode: str
+  overflow: bool
+
+
+def exploration_graph(memory, res: float, origin) -> ExplorationGraph:
+  """The exploration graph of one robot's :class:`Memory` in world coordinates: ``x = origin_x +
+  u·res``, ``y = origin_y + v·res``. ``memory``: its leaves by field name (a mapping, as
+  :func:`jaxplore.results.memory_arrays` names them, or the Memory itself; any array type)."""
+  if isinstance(memory, Memory):
+    memory = {f.name: getattr(memory, f.name) for f in dataclasses.fields(Memory)}
+  memory = types.SimpleNamespace(**memory)
+  count = int(np.asarray(memory.count))
+  uv = np.asarray(memory.uv, np.float64)[:count]
+  rho = np.asarray(memory.rho, np.float64)[:count]
+  bins = rho.shape[1]
+  phi = -np.pi + (np.arange(bins) + 0.5) * (2 * np.pi / bins)
+  ends = uv[:, None, :] + rho[..., None] * np.stack([np.cos(phi), np.sin(phi)], axis=-1)[None]
+  origin = np.asarray(origin, np.float64)
+  adjacent = np.asarray(memory.adjacent, bool)[:count, :count]
+  i, j = np.nonzero(np.triu(adjacent, 1))
+  return ExplorationGraph(
+      nodes=(origin + uv * res).astype(np.float32), parent=np.asarray(memory.parent)[:count],
+      edges=np.stack([i, j], axis=-1).astype(np.int32),
+      lsr=(origin + ends * res).astype(np.float32),
+      open=np.asarray(memory.open, bool)[:count],
+      obstacle=np.asarray(memory.obstacle, bool)[:count],
+      current=int(np.asarray(memory.current)), mode=MODES[int(np.asarray(memory.mode))],
+      overflow=bool(np.asarray(memory.overflow)))
+
+
 _COMMON = dict(defaults=Weights, settings=SETTINGS, validate=validate, init_memory=init_memory,
-               commits=True, preset="toriz")
+               commits=True, preset="toriz", memory_graph=exploration_graph)
 
 
 @base.register("ereg", summary="Toriz & Sánchez's Extended REG: deterministic frontier hierarchy, "
@@ -684,51 +737,3 @@ def plan_srg(ctx, view, robot, params, key, memory):
 def plan_srt(ctx, view, robot, params, key, memory):
   """SRT as the Toriz introduction describes it; see the module docstring."""
   return _plan("srt", ctx, view, robot, params, key, memory)
-
-
-@dataclasses.dataclass(frozen=True)
-class ExplorationGraph:
-  """One robot's exploration graph in metres (host side, NumPy), for tables and figures.
-
-  Attributes:
-    nodes: f32[n, 2] node positions (x, y), m.
-    parent: i32[n] the node each node was reached from (-1 for node 0).
-    edges: i32[E, 2] node pairs (i < j) joined by an edge.
-    lsr: f32[n, B, 2] the LSR polygons: the end of every bin's central ray, m.
-    open: bool[n, B] bins still on a node's frontier; obstacle: bool[n, B] bins whose ray
-      stops on an occupied cell.
-    current: the node the robot is at (or last left); mode: its mode name.
-    overflow: the node capacity was reached and exploration stopped early.
-  """
-
-  nodes: np.ndarray
-  parent: np.ndarray
-  edges: np.ndarray
-  lsr: np.ndarray
-  open: np.ndarray
-  obstacle: np.ndarray
-  current: int
-  mode: str
-  overflow: bool
-
-
-def exploration_graph(memory, res: float, origin) -> ExplorationGraph:
-  """The exploration graph of one robot's :class:`Memory` (leaves of one robot, any array type)
-  in world coordinates: ``x = origin_x + u·res``, ``y = origin_y + v·res``."""
-  count = int(np.asarray(memory.count))
-  uv = np.asarray(memory.uv, np.float64)[:count]
-  rho = np.asarray(memory.rho, np.float64)[:count]
-  bins = rho.shape[1]
-  phi = -np.pi + (np.arange(bins) + 0.5) * (2 * np.pi / bins)
-  ends = uv[:, None, :] + rho[..., None] * np.stack([np.cos(phi), np.sin(phi)], axis=-1)[None]
-  origin = np.asarray(origin, np.float64)
-  adjacent = np.asarray(memory.adjacent, bool)[:count, :count]
-  i, j = np.nonzero(np.triu(adjacent, 1))
-  return ExplorationGraph(
-      nodes=(origin + uv * res).astype(np.float32), parent=np.asarray(memory.parent)[:count],
-      edges=np.stack([i, j], axis=-1).astype(np.int32),
-      lsr=(origin + ends * res).astype(np.float32),
-      open=np.asarray(memory.open, bool)[:count],
-      obstacle=np.asarray(memory.obstacle, bool)[:count],
-      current=int(np.asarray(memory.current)), mode=MODES[int(np.asarray(memory.mode))],
-      overflow=bool(np.asarray(memory.overflow)))

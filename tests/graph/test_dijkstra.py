@@ -1,5 +1,6 @@
 """Tests for jaxplore.graph.dijkstra against SciPy's Dijkstra on the same 8-connected graphs."""
 
+import functools
 import math
 import re
 
@@ -18,6 +19,7 @@ from jaxplore.graph import ShortestPaths
 from jaxplore.graph import extract_path
 from jaxplore.graph import shortest_paths
 from jaxplore.graph import shortest_paths_batched
+from jaxplore.graph.dijkstra import TILES_AFTER_ROUNDS, default_max_sweeps
 
 RTOL, ATOL = 1e-5, 1e-6
 
@@ -425,22 +427,28 @@ def test_extract_path_survives_a_cyclic_pred(transform):
   assert int(length) == 0
 
 
-def test_batching_sets_how_vmap_batches_the_solver():
-  """The whole batch as one chunk (the lockstep strategy) solves every grid as chunks of 4 do."""
-  from jaxplore.graph import batching
+def test_vmap_chunk_and_the_strategy_set_how_vmap_batches_the_solver():
+  """The whole batch as one chunk (the lockstep strategy) solves every grid as chunks of 4 do;
+  a planner's context batches as its execution strategy says (STRATEGY_BATCHING)."""
+  from jaxplore.planners.base import PlannerContext
   costs, sources = _batch(11)
   default = jax.jit(jax.vmap(shortest_paths))(costs, sources)
-  with batching(None):
-    whole = jax.jit(jax.vmap(shortest_paths))(costs, sources)
-    whole_jaxpr = str(jax.make_jaxpr(jax.vmap(shortest_paths))(costs, sources))
+  whole_fn = jax.vmap(functools.partial(shortest_paths, vmap_chunk=None))
+  whole = jax.jit(whole_fn)(costs, sources)
   chex.assert_trees_all_equal(whole, default)
   # The lax.map over chunks (a scan) runs once for the whole batch, twice for 7 grids in 4s.
+  whole_jaxpr = str(jax.make_jaxpr(whole_fn)(costs, sources))
   default_jaxpr = str(jax.make_jaxpr(jax.vmap(shortest_paths))(costs, sources))
   assert re.search(r"length=1\b", whole_jaxpr) and not re.search(r"length=2\b", whole_jaxpr)
   assert re.search(r"length=2\b", default_jaxpr) and not re.search(r"length=1\b", default_jaxpr)
+  for strategy, length in (("per_robot", 2), ("lockstep", 1)):
+    ctx = PlannerContext(height=costs.shape[1], width=costs.shape[2], res=0.1,
+                         dijkstra_max_sweeps=default_max_sweeps(*costs.shape[1:]),
+                         dijkstra_tiles_after_rounds=TILES_AFTER_ROUNDS, strategy=strategy)
+    jaxpr = str(jax.make_jaxpr(jax.vmap(ctx.shortest_paths))(costs, sources))
+    assert re.search(rf"length={length}\b", jaxpr), strategy
   with pytest.raises(ValueError, match="method"):
-    with batching(None, "bellman"):
-      pass
+    shortest_paths(costs[0], sources[0], vmap_method="bellman")
 
 
 # --- relaxation (the accelerator's method) ---------------------------------------------------
@@ -481,12 +489,11 @@ def test_relaxation_reaches_the_sweeps_distances_bit_for_bit():
 
 
 def test_relaxation_under_vmap_and_its_bound():
-  """``batching(None, "relaxation")`` makes ``vmap(shortest_paths)`` relax; a bound below the
+  """``vmap_method="relaxation"`` makes ``vmap(shortest_paths)`` relax; a bound below the
   passes a maze needs is reported as non-convergence."""
-  from jaxplore.graph import batching
   costs, sources = _batch(12, batch=5)
-  with batching(None, "relaxation"):
-    relaxed = jax.jit(jax.vmap(shortest_paths))(costs, sources)
+  relax = functools.partial(shortest_paths, vmap_chunk=None, vmap_method="relaxation")
+  relaxed = jax.jit(jax.vmap(relax))(costs, sources)
   _same_but_rounds(relaxed, _swept(costs, sources))
   rng = np.random.default_rng(5)
   wall = maze_world(rng, cells=12)

@@ -1,12 +1,11 @@
-"""The planner contract's shared helpers (jaxplore/planners/base.py)."""
+"""The frontier machinery the engine offers planners (jaxplore/frontiers.py)."""
 
 import numpy as np
 import jax
 import jax.numpy as jnp
 
 from conftest import EAGER_AND_JIT
-from jaxplore import mapping
-from jaxplore.planners import base
+from jaxplore import frontiers, mapping
 
 
 def unknown_neighbour_numpy(cell, unknown, occupied):
@@ -32,7 +31,7 @@ def unknown_neighbour_numpy(cell, unknown, occupied):
 @EAGER_AND_JIT
 def test_unknown_neighbour_is_the_first_open_unknown_neighbour_by_numpy(transform):
   rng = np.random.default_rng(3)
-  find = transform(base.unknown_neighbour)
+  find = transform(frontiers.unknown_neighbour)
   h, w = 7, 9
   found_one = sealed = 0
   for _ in range(12):
@@ -57,7 +56,7 @@ def test_unknown_neighbour_under_vmap_keeps_each_cells_answer():
   unknown = rng.random((6, 6)) < 0.3
   occupied = ~unknown & (rng.random((6, 6)) < 0.5)
   cells = jnp.asarray([(r, c) for r in range(6) for c in range(6)], jnp.int32)
-  got = jax.vmap(base.unknown_neighbour, in_axes=(0, None, None))(
+  got = jax.vmap(frontiers.unknown_neighbour, in_axes=(0, None, None))(
       cells, jnp.asarray(unknown), jnp.asarray(occupied))
   want = [unknown_neighbour_numpy(tuple(c), unknown, occupied) for c in np.asarray(cells)]
   np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
