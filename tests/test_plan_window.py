@@ -46,7 +46,7 @@ def full_and_window_plans(config, world, params, states, window):
                                             robot, origin, key)
     view = sim.belief_view(config, p, s, robot.cell)
     node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
-    dist, _ = frontiers.reachable_paths(config, view, robot, node_cost)
+    dist, _ = frontiers.reachable_paths(sim.planner_context(config), view, robot, node_cost)
     return full, local, certified, view, dist
 
   return jax.jit(jax.vmap(both))(params, states)

@@ -26,7 +26,8 @@ from jaxplore.planners import base, get_planner, godoy2023
 VARIANTS = pytest.mark.parametrize("variant", [lambda f: f, jax.jit], ids=["eager", "jit"])
 FREE, OCC, UNK = 0, 1, 2
 H, W, RES = 18, 26, 0.1
-CONFIG = SimConfig(height=H, width=W, res=RES, max_inflation_cells=0, path_capacity=128)
+CONFIG = base.PlannerContext(height=H, width=W, res=RES, max_inflation_cells=0,
+                             path_capacity=128)
 PARAMS = make_params(r_robot=0.0)
 KEY = jax.random.PRNGKey(0)
 
