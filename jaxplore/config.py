@@ -15,11 +15,10 @@ import dataclasses
 import math
 from typing import Any
 
-import chex
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import posegraph
+from jaxplore import posegraph, pytrees
 from jaxplore.errors import ConfigError, shown
 from jaxplore.settings import declared, setting
 
@@ -208,7 +207,7 @@ class SimConfig:
 STATIC_SETTINGS = declared(SimConfig)
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class Params:
   """Traced numbers of the simulator; every leaf is a float32 scalar (or batched under vmap).
 

@@ -22,7 +22,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import mapping
+from jaxplore import mapping, pytrees
 from jaxplore.config import Params, SimConfig, window_margin
 from jaxplore.graph import labels
 from jaxplore.planners import base as planners_base
@@ -126,7 +126,7 @@ def _propose(config: SimConfig, params: Params, state: State, robot, origin, key
   return planning_window.to_grid(result, origin), memory, certified
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class PlanOutcome:
   """What one planning round changes in one robot's state.
 

@@ -41,14 +41,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplore import linalg, mapping, motion
+from jaxplore import linalg, mapping, motion, pytrees
 from jaxplore.errors import ConfigError
 
 # Candidates whose line of sight is checked, nearest first, when a keyframe looks for a loop.
 LOOP_CANDIDATES = 4
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class PoseGraph:
   """One robot's pose graph, fixed capacity (N keyframes, M loop closures).
 

@@ -30,7 +30,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import linalg, mapping, motion, posegraph, sensor
+from jaxplore import linalg, mapping, motion, posegraph, pytrees, sensor
 from jaxplore.config import Params, SimConfig
 from jaxplore.errors import ConfigError
 from jaxplore.planners import base as planners_base
@@ -41,7 +41,7 @@ RUNNING, COMPLETE, EXHAUSTED, TIMEOUT = 0, 1, 2, 3
 REASONS = {RUNNING: "running", COMPLETE: "complete", EXHAUSTED: "exhausted", TIMEOUT: "timeout"}
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class State:
   """One robot's whole simulation state (leaves gain a leading batch axis under vmap).
 
@@ -93,7 +93,7 @@ class State:
   graph: Any = None
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class Record:
   """Per-step measurements of one robot."""
 

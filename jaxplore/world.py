@@ -16,12 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
 
-from jaxplore import sensor
+from jaxplore import pytrees, sensor
 from jaxplore.config import ConfigError
 from jaxplore.maps.grid import GridMap
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class World:
   """The ground truth shared by every robot of a batch (pass with ``in_axes=None``).
 

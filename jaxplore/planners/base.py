@@ -27,6 +27,7 @@ from typing import Any
 import chex
 import jax.numpy as jnp
 
+from jaxplore import pytrees
 from jaxplore.config import PARAM_FIELDS, ConfigError
 from jaxplore.graph.dijkstra import STRATEGY_BATCHING, ShortestPaths, shortest_paths
 from jaxplore.settings import Setting, declared
@@ -72,7 +73,7 @@ class PlannerContext:
                           vmap_chunk=chunk, vmap_method=method)
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class BeliefView:
   """What a planner may look at (one robot).
 
@@ -101,7 +102,7 @@ class BeliefView:
   pose_graph: Any = None
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class RobotView:
   """The robot as it believes itself to be: estimated pose (m, rad), its cell, covariance Σ."""
 
@@ -110,7 +111,7 @@ class RobotView:
   cov: chex.Array  # f32[3, 3]
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class Plan:
   """A planner's answer for one robot.
 

@@ -58,7 +58,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import gp, mapping, sensor, virtual_scan
+from jaxplore import gp, mapping, pytrees, sensor, virtual_scan
 from jaxplore.frontiers import plan_to, reachable_paths
 from jaxplore.graph import labels
 from jaxplore.planners import base
@@ -134,7 +134,7 @@ class Settings:
                          static=True, ge=1, le=MAX_BEAMS, integer=True)
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class Memory:
   """What a robot's ``gpbo`` keeps between plans.
 

@@ -93,6 +93,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplore import pytrees
 from jaxplore.errors import ConfigError, shown
 from jaxplore.frontiers import plan_to, reachable_paths
 from jaxplore.graph import node_graph
@@ -174,7 +175,7 @@ class Settings:
                               boolean=True)
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class Memory:
   """One robot's exploration graph and where it is in Fig 1's loop (N nodes, B bins).
 

@@ -70,7 +70,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxplore import linalg, motion
+from jaxplore import linalg, motion, pytrees
 
 # |x| below which sin(x)/x is taken from its series (float32-exact there; the quotient above).
 _SERIES = 0.2
@@ -81,7 +81,7 @@ _LAMBDA_MAX = 1e6
 _UNANCHORED = 1e-3
 
 
-@chex.dataclass(frozen=True)
+@pytrees.dataclass(frozen=True)
 class Edges:
   """A pose graph's edges, fixed capacity E.
 
