@@ -25,7 +25,7 @@ import pandas as pd
 from jaxplore import results
 from jaxplore.config import ConfigError
 from jaxplore.errors import check_writable
-from jaxplore.resolve import config_difference, resolve
+from jaxplore.resolve import Batch, Resolved, config_difference, resolve
 from jaxplore.runspec import SIM_PARAMS, RunSpec
 
 MAX_FRAMES = 150  # default frame budget: --every is chosen so an animation has at most this many
@@ -134,7 +134,7 @@ def _legacy_spec(config: dict, episodes: pd.DataFrame, grid) -> RunSpec:
       planner_params=values(config["planner_params"]))
 
 
-def _check_config(resolved, recorded: dict | None, where: Path, version: str):
+def _check_config(resolved, recorded: dict | None, where: Path | None, version: str):
   """Refuses to replay settings that resolve to another static config than the recorded one."""
   difference = config_difference(recorded, resolved.config)
   if difference is not None:
@@ -148,8 +148,8 @@ class _Setup:
   """What a replay needs: the chosen robots, the resolved batch and the planner's name."""
 
   robots: tuple
-  resolved: object  # jaxplore.resolve.Resolved
-  batch: object  # jaxplore.resolve.Batch of the chosen robots
+  resolved: Resolved
+  batch: Batch  # of the chosen robots
 
 
 def _run_setup(run_dir: Path, config: dict, episodes: pd.DataFrame, robots) -> _Setup:
@@ -393,10 +393,14 @@ def render(replay: Replay, out, fps: float = 8.0, dpi: int = 80, progress: bool 
     title.set_text(f"{replay.planner} on {replay.world}"
                    f", step {step}")
 
+  # matplotlib's stubs say fps is an int; the writers take any positive number (a frame's
+  # duration is 1000 / fps ms for Pillow, ffmpeg gets -framerate str(fps)).
+  writer: animation.AbstractMovieWriter
   if writer_name == "pillow":
-    writer = animation.PillowWriter(fps=fps)
+    writer = animation.PillowWriter(fps=fps)  # type: ignore[arg-type]  # stub: fps int only
   else:
-    writer = animation.FFMpegWriter(fps=fps, codec="h264", extra_args=["-pix_fmt", "yuv420p"])
+    writer = animation.FFMpegWriter(fps=fps,  # type: ignore[arg-type]  # stub: fps int only
+                                    codec="h264", extra_args=["-pix_fmt", "yuv420p"])
   out.parent.mkdir(parents=True, exist_ok=True)
   tmp = out.with_name(out.stem + ".tmp" + out.suffix)
   bar = None

@@ -546,7 +546,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *,
   r_robot = float(np.max(np.asarray(params.r_robot)))
   r_u = float(np.max(np.asarray(params.alpha))) * float(overrides.get("r_e", SimConfig.r_e))
   check_length("alpha", r_u, limit, "the entropy-map update", "R_u = alpha * r_e")
-  kwargs = dict(
+  kwargs: dict[str, Any] = dict(
       height=int(world_shape[0]), width=int(world_shape[1]), res=float(res),
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),

@@ -223,7 +223,8 @@ def drive(compiled, world, params, state, max_steps: int, *, interruptible: bool
   Raises:
     Stalled: a chunk made no progress (unless ``interruptible``).
   """
-  records, steps, interrupted, stalled, dropped = [], 0, False, None, ""
+  records: list[sim.Record] = []
+  steps, interrupted, stalled, dropped = 0, False, None, ""
   slowest = None
   t0 = time.perf_counter()
   try:

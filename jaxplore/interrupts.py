@@ -18,11 +18,12 @@ import os
 import signal
 import sys
 import threading
+from typing import Any
 
 EXIT_CODE = 130  # 128 + SIGINT, what a shell reports for a Ctrl-C'd command
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_state = {"depth": 0, "requested": False, "previous": {}, "signal": signal.SIGINT}
+_state: dict[str, Any] = {"depth": 0, "requested": False, "previous": {}, "signal": signal.SIGINT}
 
 
 def _on_signal(signum, frame):

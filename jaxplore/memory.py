@@ -30,7 +30,7 @@ def _largest_part(config: SimConfig) -> str:
       f"the lidar buffers of {config.n_beams} beams of {config.max_range_cells} cells (r_max)":
           config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6,
   }
-  return max(parts, key=parts.get)
+  return max(parts, key=parts.__getitem__)
 
 
 # The model's constants, fitted to the peak RSS of `jaxplore run` on this project's CPU

@@ -96,12 +96,12 @@ def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, lab
     return
   xmax = curves.groupby("robot")[x].max().max()
   xs = np.linspace(0.0, max(xmax, 1e-9), grid_points)
-  ys = []
+  rows: list[np.ndarray] = []
   for _, c in curves.groupby("robot"):
     cx, cy = c[x].to_numpy(), c[y].to_numpy()
     keep = np.concatenate([[True], np.diff(cx) > 0])
-    ys.append(np.interp(xs, cx[keep], cy[keep]))
-  ys = np.asarray(ys)
+    rows.append(np.interp(xs, cx[keep], cy[keep]))
+  ys = np.asarray(rows)
   line, = ax.plot(xs, ys.mean(0), label=label)
   if len(ys) > 1:
     ax.fill_between(xs, np.quantile(ys, 0.1, axis=0), np.quantile(ys, 0.9, axis=0), alpha=0.25,

@@ -35,6 +35,7 @@ two loops span. That costs O(M³) in the loop capacity M, not O(N³).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import chex
 import jax
@@ -100,6 +101,9 @@ class PoseGraph:
   optimisations: chex.Array | None = None
   matches_rejected: chex.Array | None = None
   loops_rejected: chex.Array | None = None
+
+  if TYPE_CHECKING:  # chex.dataclass adds it at runtime
+    def replace(self, **changes: Any) -> PoseGraph: ...
 
 
 def init(pose, node_capacity: int, loop_capacity: int, beams: int = 0) -> PoseGraph:

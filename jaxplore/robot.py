@@ -24,7 +24,7 @@ to do).
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import chex
 import jax
@@ -91,6 +91,9 @@ class State:
   collisions: chex.Array
   memory: Any = ()
   graph: Any = None
+
+  if TYPE_CHECKING:  # chex.dataclass adds it at runtime
+    def replace(self, **changes: Any) -> State: ...
 
 
 @pytrees.dataclass(frozen=True)

@@ -338,7 +338,7 @@ class RunSpec:
       preset = planner_preset(settings.get("planner", cls.planner))
       if preset is not None:
         settings["preset"] = preset
-    seeds = settings.get("robot_seeds")
+    seeds: Any = settings.get("robot_seeds")  # any value; sized ones are counted below
     if "robots" not in settings and hasattr(seeds, "__len__") and not isinstance(seeds, str):
       settings["robots"] = len(seeds)  # one robot per seed
     return cls(**settings)

@@ -71,7 +71,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -353,7 +353,7 @@ def _finish_by_tiles(dist: jax.Array, cost: jax.Array, diagonal_cost: jax.Array,
     return jax.vmap(one, out_axes=2)(g, r, c)[:, :, :, 0]
 
   # neighbour[t, k]: the tile beside tile t in direction _NEIGHBOURS[k]; C * tiles off the grid.
-  neighbour = []
+  neighbour: Any = []  # one i32[C * T] per direction, then stacked: i32[C * T, 8]
   for dr, dc in _NEIGHBOURS:
     inside = (row + dr >= 0) & (row + dr < tile_rows) & (col + dc >= 0) & (col + dc < tile_cols)
     neighbour.append(jnp.where(inside, grid * tiles + (row + dr) * tile_cols + col + dc,

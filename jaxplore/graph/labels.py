@@ -50,7 +50,7 @@ class Clusters(NamedTuple):
   size: jax.Array
   centroid: jax.Array
   valid: jax.Array
-  count: jax.Array
+  count: jax.Array  # type: ignore[assignment]  # a field: shadows tuple.count by design
 
 
 def component_roots(mask: jax.Array, max_rounds: int | None = None) -> jax.Array:

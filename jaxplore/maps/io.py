@@ -23,6 +23,7 @@ import math
 import numbers
 import os
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import yaml
@@ -143,9 +144,14 @@ def load_map(yaml_path: str | os.PathLike, *, name: str | None = None,
   if not any_free:
     raise MapError(f"{where}: the map has no free cell (image {str(image_path)!r}, "
                    f"free_thresh {free_thresh}, negate {int(negate)})")
+  if plan is None:
+    grid_res = resolution
+  else:
+    assert res is not None  # a plan is only made for a res
+    grid_res = float(res)
   return GridMap(
       occupied=occupied if plan is None else plan.pad(occupied),
-      res=resolution if plan is None else float(res),
+      res=grid_res,
       origin=(float(origin[0]), float(origin[1])),
       name=name,
   )
@@ -296,8 +302,8 @@ class _MapImage:
 
   def __init__(self, image_path: Path, where: str):
     self.path, self.where = image_path, where
-    self._file = None
-    self._image = None
+    self._file: BinaryIO | None = None
+    self._image: Image.Image | None = None
     if not image_path.is_file():
       raise MapError(f"{where}: image file {str(image_path)!r} not found")
     try:
@@ -314,16 +320,16 @@ class _MapImage:
       raise MapError(f"{where}: image {str(image_path)!r} is unreadable ({e})") from e
 
   def _open_pgm(self) -> None:
-    self._file = open(self.path, "rb")  # closed by close()
-    self._file.read(2)
-    tokens = []
+    self._file = file = open(self.path, "rb")  # closed by close()
+    file.read(2)
+    tokens: list[int] = []
     while len(tokens) < 3:  # width, height, maxval; '#' starts a comment to the line's end
       token = b""
       while True:
-        c = self._file.read(1)
+        c = file.read(1)
         if c == b"#":
           while c not in (b"\n", b"\r", b""):
-            c = self._file.read(1)
+            c = file.read(1)
           if token:
             break
           continue
@@ -345,9 +351,9 @@ class _MapImage:
       raise MapError(f"{self.where}: image {str(self.path)!r} is unreadable (binary PGM of "
                      f"{self.width} x {self.height} pixels, maxval {self.maxval})")
     self._dtype = np.dtype(np.uint8 if self.maxval < 256 else ">u2")
-    self._offset = self._file.tell()
+    self._offset = file.tell()
     need = self.width * self.height * self._dtype.itemsize
-    have = os.fstat(self._file.fileno()).st_size - self._offset
+    have = os.fstat(file.fileno()).st_size - self._offset
     if have < need:
       raise MapError(f"{self.where}: image {str(self.path)!r} is truncated: {have} bytes of "
                      f"pixels, {self.width} x {self.height} at {8 * self._dtype.itemsize} bits "
@@ -360,11 +366,11 @@ class _MapImage:
     # against the memory reading it takes instead (load_map).
     bomb_limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
     try:
-      self._image = Image.open(self.path)
+      self._image = image = Image.open(self.path)
     finally:
       Image.MAX_IMAGE_PIXELS = bomb_limit
-    self.width, self.height = self._image.size
-    mode = self._image.mode
+    self.width, self.height = image.size
+    mode = image.mode
     if mode not in _PILLOW_CHANNELS:
       deep = " (16-bit grey is read from binary PGM (P5) only)" if mode.startswith("I") else ""
       raise MapError(f"{self.where}: image {str(self.path)!r} has unsupported pixel mode "
@@ -372,10 +378,10 @@ class _MapImage:
     # Pillow holds 1 byte per pixel for these modes and 4 for the others; its plain-text PGM
     # (P2) decoder also holds the pixels twice more while decoding.
     per_pixel = 1 if mode in ("1", "L", "P") else 4
-    if self._image.format == "PPM":
+    if image.format == "PPM":
       per_pixel += 2
     self.whole_bytes = self.width * self.height * per_pixel
-    self.how = (f"a {self._image.format or 'image'} file, decoded whole "
+    self.how = (f"a {image.format or 'image'} file, decoded whole "
                 f"({self.whole_bytes / 2**30:.1f} GiB: only binary PGM is read in strips)")
 
   def strip_rows(self) -> int:
@@ -410,17 +416,19 @@ class _MapImage:
           samples = np.fromfile(self._file, self._dtype, count).reshape(-1, self.width)
           yield row0, lookup[samples]
         return
+      image = self._image
+      assert image is not None  # not a binary PGM: the constructor opened it with Pillow
       bomb_limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
       try:
-        self._image.load()
+        image.load()
       finally:
         Image.MAX_IMAGE_PIXELS = bomb_limit
-      channels = _PILLOW_CHANNELS[self._image.mode]
+      channels = _PILLOW_CHANNELS[image.mode]
       # Classify each possible channel sum once, then look pixels up: float arithmetic per
       # pixel costs ~1 s on the 6.8-Mpixel maps.
       lookup = _free_table(np.arange(255 * channels + 1) / channels, 255, negate, free_thresh)
       for row0 in range(0, self.height, rows):
-        strip = self._image.crop((0, row0, self.width, min(self.height, row0 + rows)))
+        strip = image.crop((0, row0, self.width, min(self.height, row0 + rows)))
         if strip.mode == "P":
           strip = strip.convert("RGBA")
         elif strip.mode == "1":

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import chex
 import jax.numpy as jnp
@@ -101,6 +101,9 @@ class BeliefView:
   blacklist: chex.Array
   pose_graph: Any = None
 
+  if TYPE_CHECKING:  # chex.dataclass adds it at runtime
+    def replace(self, **changes: Any) -> BeliefView: ...
+
 
 @pytrees.dataclass(frozen=True)
 class RobotView:
@@ -135,6 +138,9 @@ class Plan:
   gain: chex.Array
   cost: chex.Array
   n_candidates: chex.Array
+
+  if TYPE_CHECKING:  # chex.dataclass adds it at runtime
+    def replace(self, **changes: Any) -> Plan: ...
 
 
 PlanFn = Callable[..., Plan]
@@ -206,7 +212,8 @@ class PlannerSpec:
 
   def initial_memory(self, ctx: PlannerContext, params):
     """The memory of one robot at reset (an empty tuple for a planner without memory)."""
-    return self.init_memory(ctx, params) if self.has_memory else ()
+    # has_memory: init_memory is not None
+    return cast(Callable, self.init_memory)(ctx, params) if self.has_memory else ()
 
   def propose(self, ctx: PlannerContext, view, robot, params, key, memory):
     """One call of the plan function under either signature: returns (Plan, memory)."""
@@ -329,7 +336,7 @@ def register(name: str, defaults=None, summary: str = "", *, settings=None,
   compute). ``settings``: the static settings, a frozen dataclass instance; its fields may be
   declared the same way."""
   if settings is not None and not (dataclasses.is_dataclass(settings) and
-                                   settings.__dataclass_params__.frozen):
+                                   cast(Any, settings).__dataclass_params__.frozen):
     raise TypeError(f"planner {name!r}: settings must be a frozen dataclass instance")
   weights = {}
   if isinstance(defaults, type) and dataclasses.is_dataclass(defaults):
@@ -400,6 +407,7 @@ def load_plugins() -> None:
           raise FileNotFoundError(f"no file {str(path)!r}")
         name = f"jaxplore_plugin_{path.stem}"
         spec = importlib.util.spec_from_file_location(name, path)
+        assert spec is not None and spec.loader is not None  # a .py file has a source loader
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)

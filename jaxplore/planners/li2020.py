@@ -54,6 +54,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -264,7 +265,7 @@ def ray_tree(radius: float):
   disc = sorted((o for o in disc_offsets(radius) if o != (0, 0)),
                 key=lambda o: (o[0] * o[0] + o[1] * o[1], o))
   chains = {(0, 0): np.zeros((0, 2))}
-  children = {(0, 0): []}
+  children: dict[tuple[int, int], list[tuple[int, int]]] = {(0, 0): []}
   parent_of = {}
   for o in disc:
     normal = np.array([o[1], -o[0]], np.float64) / math.hypot(*o)
@@ -277,6 +278,7 @@ def ray_tree(radius: float):
       cost = float(np.abs(cells @ normal).sum())
       if cost < best_cost - 1e-9:
         best, best_cost = q, cost
+    assert best is not None  # a nearer 8-neighbour of a disc offset is in the disc, seen before
     chains[o] = chains[best] if best == (0, 0) else np.vstack([chains[best], best])
     children[best].append(o)
     children[o] = []
@@ -329,7 +331,7 @@ def sight_levels(radius: float):
     if widths(nodes).max() <= limit:
       groups.append((nodes, np.ones(len(nodes), bool)))
       continue
-    bins = []
+    bins: list[np.ndarray] = []
     for unit in children[s]:
       if not bins or (widths(np.concatenate([bins[-1], unit])) > limit).any():
         bins.append(unit)
@@ -340,7 +342,7 @@ def sight_levels(radius: float):
   width = max(widths(nodes).max() for nodes, _ in groups)
   steps = np.zeros((len(groups), n_depth, width, 7), np.int32)
   counts = np.zeros((len(groups), n_depth), np.int32)
-  levels = [[[] for _ in range(n_depth)] for _ in groups]
+  levels: list[list[list[tuple[Any, Any]]]] = [[[] for _ in range(n_depth)] for _ in groups]
   for g, (nodes, counted) in enumerate(groups):
     where = {}
     for i, count_here in zip(nodes, counted):

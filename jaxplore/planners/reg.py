@@ -87,6 +87,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import types
+from typing import Any
 
 import chex
 import jax
@@ -708,8 +709,9 @@ def exploration_graph(memory, res: float, origin) -> ExplorationGraph:
       overflow=bool(np.asarray(memory.overflow)))
 
 
-_COMMON = dict(defaults=Weights, settings=SETTINGS, validate=validate, init_memory=init_memory,
-               commits=True, preset="toriz", memory_graph=exploration_graph)
+_COMMON: dict[str, Any] = dict(
+    defaults=Weights, settings=SETTINGS, validate=validate, init_memory=init_memory,
+    commits=True, preset="toriz", memory_graph=exploration_graph)
 
 
 @base.register("ereg", summary="Toriz & Sánchez's Extended REG: deterministic frontier hierarchy, "

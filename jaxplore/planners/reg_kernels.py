@@ -169,7 +169,7 @@ class Runs(NamedTuple):
   start: jax.Array
   length: jax.Array
   valid: jax.Array
-  count: jax.Array
+  count: jax.Array  # type: ignore[assignment]  # a field named as tuple.count
 
 
 def circular_runs(mask) -> Runs:

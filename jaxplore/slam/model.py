@@ -281,6 +281,7 @@ def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points,
                origin, candidates, ok) -> Closure:
   """Looks for a loop closure of the new keyframe ``i`` (at estimate ``pose``, true ``truth``)
   against the ``candidates`` (:func:`loop_candidates`; their scans in ``ranges``)."""
+  assert graph.truth is not None and graph.drift_cov is not None  # the scan_matching graph's
   sz = sizes(config)
   occupied, corner = local_map(graph, ranges, candidates, ok, offsets, config.res, pose[:2],
                                sz.loop_crop, origin)
@@ -318,6 +319,7 @@ def loop_armed(graph: PoseGraph, pose, params):
   """Whether the robot may look for a loop closure: never yet closed one, or has since moved
   more than ``loop_radius`` from where it did (Karto finds no closure among scans already linked
   to the new one: after a closure, the revisited place is linked)."""
+  assert graph.closed_at is not None  # the scan_matching graph's
   offset = pose[:2] - graph.closed_at
   return ~jnp.all(jnp.isfinite(graph.closed_at)) | (jnp.hypot(offset[0], offset[1])
                                                     > params.loop_radius)
@@ -341,6 +343,8 @@ def add_loop(graph: PoseGraph, closure: Closure, i) -> PoseGraph:
 
 def graph_edges(graph: PoseGraph) -> optimiser.Edges:
   """The odometry and loop edges of ``graph`` as the optimiser takes them."""
+  assert graph.chain_measured is not None and graph.chain_info is not None  # scan_matching's
+  assert graph.loop_measured is not None and graph.loop_info is not None
   n_cap = graph.poses.shape[0]
   k = jnp.arange(1, n_cap)
   return optimiser.Edges(
@@ -357,6 +361,7 @@ WOODBURY_LOOPS = 32
 
 def optimise(config, graph: PoseGraph) -> PoseGraph:
   """The back end: every keyframe's pose re-estimated from all edges (keyframe 0 fixed)."""
+  assert graph.optimisations is not None  # the scan_matching graph's
   valid = jnp.arange(graph.poses.shape[0]) < graph.n_nodes
   # The preconditioner takes up to WOODBURY_LOOPS closures exactly (a 3K x 3K factorisation
   # per iteration, K the loop slots it covers); any further ones are left to the conjugate

@@ -64,7 +64,7 @@ of the project.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import chex
 import jax
@@ -381,13 +381,13 @@ def _cholesky_solve(chol: _Cholesky, r):
   nb, b = chol.diag_inv.shape[:2]
   n = r.shape[0]
   r = jnp.pad(r, (0, nb * b - n))
-  ys = []
+  ys: list[jax.Array] = []
   for j in range(nb):
     rhs = r[j * b:(j + 1) * b]
     if j:
       rhs = rhs - chol.low[j * b:(j + 1) * b, :j * b] @ jnp.concatenate(ys)
     ys.append(chol.diag_inv[j] @ rhs)
-  xs = [None] * nb
+  xs: list[Any] = [None] * nb  # filled back to front: xs[j + 1:] are arrays when read
   for j in reversed(range(nb)):
     rhs = ys[j]
     if j < nb - 1:

@@ -189,6 +189,7 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
         if made.spec.to_json() != spec.to_json():
           raise ConfigError(f"process {process} was given another sweep than process 0 "
                             f"({first_difference(made.spec.to_json(), spec.to_json())})")
+    assert made is not None  # every branch above reads or makes the schedule
     if resolved is None:
       resolved = schedules.resolve_schedule(made, out, grids, n_dev)
     group_runs = [execute.GroupRun(g, r) for g, r in zip(made.groups, resolved)]

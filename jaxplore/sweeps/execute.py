@@ -19,6 +19,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -140,12 +141,14 @@ def execute(schedule: Schedule, group_runs: list[GroupRun], out: Path | None, n_
       if damage is not None and chunk.index % n_processes == process:
         print(f"jaxplore: chunk {chunk.index} of {out} is damaged ({damage}): computing it again",
               file=sys.stderr)
+        assert out is not None  # damage is only found in a sweep folder
         for path in chunk_paths(out, chunk.index).values():
           path.unlink(missing_ok=True)
       if out is not None and is_done(out, chunk):
         done_rows += len(chunk.rows)
       elif chunk.index % n_processes == process:
         work.append((group_run, chunk))
+  tally: dict[str, Any]
   tally, times = {}, {"reset_s": 0.0, "compile_s": 0.0, "run_s": 0.0}
   tables = {}
   bar = None
@@ -213,7 +216,7 @@ def distributed() -> tuple[int, int]:
   """
   import jax
   if not jax.distributed.is_initialized():
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     if os.environ.get("JAX_NUM_PROCESSES"):
       kwargs["num_processes"] = int(os.environ["JAX_NUM_PROCESSES"])
     if os.environ.get("JAX_PROCESS_ID"):

@@ -20,6 +20,7 @@ import itertools
 import json
 import math
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -186,8 +187,9 @@ def count_rows(spec: SweepSpec) -> int:
     planner_spec = get_planner(planner)
     applies = [n for n in spec.grid if kind_of(n, planner_spec) is not None]
     random_applies = any(kind_of(n, planner_spec) is not None for n in spec.random)
+    # make_spec: samples is an int whenever spec.random is not empty
     total += (math.prod(len(spec.grid[n]) for n in applies)
-              * (spec.samples if random_applies else 1) * len(spec.seeds))
+              * (cast(int, spec.samples) if random_applies else 1) * len(spec.seeds))
   return total * len(spec.worlds)
 
 
@@ -208,14 +210,16 @@ def split_groups(spec: SweepSpec) -> list[Group]:
   """The groups of a sweep (rows numbered across it), before their chunks are sized: one per
   world and planner, split further by the values of every swept static setting."""
   check_size(spec)
-  drawn = random_samples(spec.random, spec.samples, spec.random_seed) if spec.random else [()]
+  # make_spec: samples is an int whenever spec.random is not empty
+  drawn = (random_samples(spec.random, cast(int, spec.samples), spec.random_seed)
+           if spec.random else [()])
   groups, row = [], 0
   for w in range(len(spec.worlds)):
     for planner in spec.planners:
       names, settings = _settings_of(spec, planner, drawn)
       planner_spec = get_planner(planner)
       static_at = [k for k, n in enumerate(names) if is_static(n, planner_spec)]
-      parts = {}  # static values -> settings, in order of first appearance
+      parts: dict[tuple, list] = {}  # static values -> settings, in order of first appearance
       for values in settings:
         parts.setdefault(tuple(values[k] for k in static_at), []).append(values)
       for part in parts.values():
@@ -254,6 +258,7 @@ def load_world_entry(entry: WorldEntry, res, out: Path | None, grids: dict) -> G
     return grids[entry.file]
   if out is None:
     raise ConfigError(f"world {entry.grid!r} was given as a GridMap and is not saved anywhere")
+  assert entry.file is not None  # an entry without a name is a saved GridMap: file is set
   path = out / entry.file
   if not path.exists():
     raise ConfigError(f"cannot resume: the world file {path} of the schedule is missing")
