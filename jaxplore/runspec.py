@@ -41,6 +41,7 @@ from jaxplore.config import (
   STATIC_SETTINGS,
   STRATEGIES,
   ConfigError,
+  SimConfig,
 )
 from jaxplore.settings import declared, setting
 
@@ -239,8 +240,8 @@ class RunSpec:
                                      unset="the preset's")
   path_capacity: int | None = setting(None, "waypoints a path may hold (the robot's own cell "
                                       "first, then where it goes)", owner="run",
-                                      static=True, ge=2,
-                                      integer=True, unset="256")
+                                      static=True, ge=2, integer=True,
+                                      unset=str(SimConfig.path_capacity))
   plan_window: int | None = setting(None, "side in cells of the window a windowed planner "
                                     "(nearest frontier, fd) plans on first (0: the whole grid)",
                                     owner="run", static=True, ge=0, integer=True,
@@ -255,7 +256,7 @@ class RunSpec:
                                     "slam = scan_matching")
   graph_loops: int | None = setting(None, "loop-closure capacity of the pose graph",
                                     owner="run", static=True, ge=1, integer=True,
-                                    unset="256")
+                                    unset=str(SimConfig.graph_loops))
   params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   planner_params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   rate_interval: float = setting(1.0, "metres per interval of Std(E_r)", owner="run", unit="m",
