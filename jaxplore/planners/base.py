@@ -361,15 +361,6 @@ def register(name: str, defaults=None, summary: str = "", *, settings=None,
   return wrap
 
 
-def require_at_least_one(planner: str, settings, names) -> None:
-  """Refuses static settings among ``names`` below 1: each sizes an array of the plan, which
-  would be empty (a gather from it fails inside the compiler)."""
-  bad = [f"{name} = {getattr(settings, name)}" for name in names if getattr(settings, name) < 1]
-  if bad:
-    raise ConfigError(f"{planner}: setting {', '.join(bad)} must be at least 1 (it sizes the "
-                      f"plan's arrays)")
-
-
 # Planners from outside the package: os.pathsep-separated .py files or module names, imported
 # (once) before the registry is first read; ``jaxplore --plugin FILE`` adds to it.
 PLUGINS_ENV = "JAXPLORE_PLUGINS"
