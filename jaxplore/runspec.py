@@ -74,12 +74,6 @@ def number(value, what: str) -> float:
   return value
 
 
-def positive_int(value, what: str) -> int:
-  if not _is_int(value) or value < 1:
-    raise ConfigError(f"{what} must be a positive integer, got {value!r}")
-  return int(value)
-
-
 def seed_value(value, what: str = "seed") -> int:
   """A PRNG seed: an integer in [0, 2**32) (``PRNGKey`` takes a uint32; larger seeds alias)."""
   if not _is_int(value) or not 0 <= value < SEED_LIMIT:
@@ -138,28 +132,27 @@ def _mapping(values, what: str, text_allowed: bool = False, words=()) -> Mapping
       for k, v in values.items()})
 
 
-def _misplaced(params: Mapping, planner_params: Mapping, planner) -> list[tuple[str, str, str]]:
-  """(name, its table, the table it belongs to) of each name given to the other table: a user
-  names a setting without saying whose it is, so a planner's weight or setting may come in
+def route_settings(params: Mapping | None, planner_params: Mapping | None,
+                   planners) -> tuple[dict, dict]:
+  """(params, planner_params) with each name in the table it belongs to: a user names a setting
+  without saying whose it is, so a weight or setting of one of ``planners`` (names) may come in
   ``params`` (``--set``) and a simulator parameter in ``planner_params``. A name given to both
-  is refused."""
+  tables is refused; an unknown planner is left to be refused where it is looked up."""
   from jaxplore.planners import get_planner
+  params, planner_params = dict(params or {}), dict(planner_params or {})
   try:
-    spec = get_planner(planner)
+    specs = [get_planner(p) for p in ([planners] if isinstance(planners, str) else planners)]
   except ConfigError:
-    return []  # refused later, naming the planner
-  moves = []
-  for name in map(str, params):
-    if kind_of(name, spec) in ("weight", "setting"):
-      moves.append((name, "params", "planner_params"))
-  for name in map(str, planner_params):
-    if name in SIM_PARAMS:
-      moves.append((name, "planner_params", "params"))
-  for name, _source, target in moves:
-    if name in (planner_params if target == "planner_params" else params):
+    return params, planner_params
+  theirs = [n for n in params if any(kind_of(str(n), s) in ("weight", "setting") for s in specs)]
+  ours = [n for n in planner_params if n in SIM_PARAMS]
+  for name in theirs + ours:
+    if name in params and name in planner_params:
       raise ConfigError(f"{name} is given twice (as a simulator parameter and a planner "
                         f"parameter); give it once")
-  return moves
+  planner_params.update({n: params.pop(n) for n in theirs})
+  params.update({n: planner_params.pop(n) for n in ours})
+  return params, planner_params
 
 
 def _refuse_unknown_params(params: Mapping, planner: str) -> None:
@@ -299,11 +292,9 @@ class RunSpec:
       put("robot_seeds", seeds)
     put("start", parse_start(self.start))
     if isinstance(self.params, Mapping) and isinstance(self.planner_params, Mapping):
-      put("params", self.params)
-      put("planner_params", self.planner_params)
-      for name, source, target in _misplaced(self.params, self.planner_params, self.planner):
-        put(target, {**getattr(self, target), name: getattr(self, source)[name]})
-        put(source, {k: v for k, v in getattr(self, source).items() if k != name})
+      params, planner_params = route_settings(self.params, self.planner_params, self.planner)
+      put("params", params)
+      put("planner_params", planner_params)
     if isinstance(self.params, Mapping):  # names first: a planner's word is no number either
       _refuse_unknown_params(self.params, self.planner)
     params = _mapping(self.params, "params", words=WORD_PARAMS)
@@ -529,5 +520,5 @@ def load_run_config(path) -> dict:
 __all__ = ["RunSpec", "FIELDS", "SHARED", "AXES", "STATIC_PARAMS", "SIM_PARAMS", "TOML_KEYS",
            "RUN_TOML_KEYS", "kind_of", "is_static", "load_run_config",
            "merge_settings", "number", "parse_start",
-           "positive_int", "read_toml",
+           "read_toml", "route_settings",
            "seed_value", "settings_from_toml", "planner_settings_of"]

@@ -575,3 +575,15 @@ def test_the_slam_model_is_a_grid_axis():
   with pytest.raises(ConfigError, match="grid value of 'slam' must be one of oracle, "
                      "scan_matching, got 'lidar'"):
     jaxplore.sweep({"slam": ["oracle", "lidar"]}, seeds=1, **SETTINGS)
+
+
+def test_set_names_a_weight_of_the_swept_planner(stop_at_compute):
+  """``--set k1=0.3`` on a li2020 sweep: the weight goes to the planner's table (the sweep's
+  shared spec names no planner, so the sweep routes it by its planners), into every row."""
+  with pytest.raises(Scheduled):
+    cli.main(["sweep", "--world", "open", "--res", "0.5", "--planner", "li2020", "--set",
+              "k1=0.3", "--grid", "alpha=1,2", "--seeds", "1", "--max-steps", "10",
+              "--no-progress", "--quiet", "--devices", "1"])
+  made, group_runs = stop_at_compute[0]
+  assert dict(made.spec.base.planner_params) == {"k1": 0.3}
+  assert "k1" not in made.spec.base.params

@@ -37,7 +37,7 @@ from jaxplore import driver, interrupts, results
 from jaxplore.config import ConfigError
 from jaxplore.errors import check_writable
 from jaxplore.memory import MEMORY_FRACTION, fit_chunk
-from jaxplore.runspec import SHARED, RunSpec, merge_settings
+from jaxplore.runspec import SHARED, RunSpec, merge_settings, route_settings
 from jaxplore.sweeps import assemble, execute
 from jaxplore.sweeps import schedule as schedules
 from jaxplore.sweeps.assemble import sweep_table
@@ -169,6 +169,9 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
     else:
       shared = {k: explicit.get(k) for k in RUN_KEYS}
       shared["preset"] = shared["preset"] or _planners_preset(explicit["planner"])
+      # a name in --set may be any of the sweep's planners' (the base spec names none of them)
+      shared["params"], shared["planner_params"] = route_settings(
+          shared["params"], shared["planner_params"], explicit["planner"] or RunSpec.planner)
       base = RunSpec.create(**shared)
       spec = make_spec(explicit["grid"], explicit["random"], explicit["samples"],
                        explicit["random_seed"], explicit["seeds"], explicit["world"],
