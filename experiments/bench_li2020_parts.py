@@ -57,7 +57,7 @@ from jaxplore import driver, linalg, planning, sim  # noqa: E402
 from jaxplore.graph.dijkstra import STRATEGY_BATCHING, extract_path  # noqa: E402
 from jaxplore.graph.tree import nearest_ancestor  # noqa: E402
 from jaxplore.maps import load_world  # noqa: E402
-from jaxplore.planners import get_planner, li2020  # noqa: E402
+from jaxplore.planners import li2020  # noqa: E402
 from jaxplore.resolve import resolve  # noqa: E402
 from jaxplore.robot import planner_context, robot_view  # noqa: E402
 from jaxplore.runspec import RunSpec  # noqa: E402
@@ -81,7 +81,7 @@ def _parse_args(argv=None):
 def parts(config, world):
   """The parts of one plan, each a function of one robot's inputs (vmapped by the caller)."""
   ctx = planner_context(config)
-  spec = get_planner(config.planner)
+  spec = config.planner
 
   def view_of(params, state):
     return planning.belief_view(config, params, state, robot_view(config, world, state).cell)

@@ -226,9 +226,8 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES,
   import jax
 
   from jaxplore import sim
-  from jaxplore.planners import get_planner
 
-  draw_memory = get_planner(sim_config.planner).memory_graph
+  draw_memory = sim_config.planner.memory_graph
 
   recorded = curves.groupby("robot").step.max()
   steps_recorded = np.asarray([int(recorded.get(r, 0)) for r in robots])
@@ -304,7 +303,7 @@ def resimulate(run_dir, robots=(0,), every=None, max_frames: int = MAX_FRAMES,
           f"{config.get('jax_version', '?')} and jaxplore {config.get('jaxplore_version', '?')}, "
           f"this is JAX {jax.__version__}: an animation would not show the recorded run")
   grid = resolved.grid
-  return Replay(robots=robots, config=config, planner=resolved.spec.planner, world=grid.name,
+  return Replay(robots=robots, config=config, planner=sim_config.planner.name, world=grid.name,
                 occupied=grid.occupied, res=grid.res,
                 origin=np.asarray(grid.origin), x=x, y=y, steps_recorded=steps_recorded,
                 frames=frames, max_deviation_m=deviation)

@@ -68,7 +68,8 @@ class SimConfig:
     replan_every: a robot replans after this many motion steps even if its path is not done
       (it always replans when its path is done).
     max_steps: the step budget of an episode (``timeout`` after it).
-    planner: registry name of the planner.
+    planner: the planner (a :class:`jaxplore.planners.PlannerSpec`, its static settings inside
+      it); a registered name given here is looked up on construction.
     pose_noise: corrupt odometry and dead-reckon the estimate; when False the estimate
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
@@ -76,8 +77,6 @@ class SimConfig:
     entropy_map: keep Li's entropy map I_e (Eq 1-3) in the state and update it every step even
       if the planner does not read it (it is always kept for one that does:
       ``PlannerSpec.needs_entropy_map``).
-    planner_settings: the planner's static settings (its registered frozen dataclass, resolved;
-      None for a planner without settings).
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
     dijkstra_tiles_after_rounds: the solver's ``tiles_after_rounds``
       (:func:`jaxplore.graph.shortest_paths`): rounds of whole-grid sweeps after which a plan not
@@ -111,7 +110,7 @@ class SimConfig:
   path_capacity: int = 256
   replan_every: int = 8
   max_steps: int = 2000
-  planner: str = "nearest_frontier"
+  planner: Any = "nearest_frontier"
   pose_noise: bool = False
   max_inflation_cells: int = 3
   max_update_radius_cells: int = 30
@@ -123,7 +122,6 @@ class SimConfig:
                            "beam per cell)", owner="entropy map", unit="beams/m", static=True,
                            ge=0)
   entropy_map: bool = False
-  planner_settings: Any = None
   dijkstra_max_sweeps: int = 512
   dijkstra_tiles_after_rounds: int = 0
   plan_chunk: int = 4
@@ -166,6 +164,8 @@ class SimConfig:
   strategy: str = "auto"
 
   def __post_init__(self):
+    from jaxplore.planners import get_planner  # the planners import this module
+    object.__setattr__(self, "planner", get_planner(self.planner))
     if self.strategy not in STRATEGIES:
       raise ConfigError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
     object.__setattr__(self, "strategy", resolve_strategy(self.strategy))

@@ -20,7 +20,7 @@ def _largest_part(config: SimConfig) -> str:
   """What makes one robot's estimate large, naming the setting behind it."""
   cells = config.height * config.width
   parts = {
-      f"the planner's memory ({config.planner}'s settings)":
+      f"the planner's memory ({config.planner.name}'s settings)":
           PLANNER_MEMORY_COPIES * planner_memory_bytes(config),
       f"the pose graph of {config.graph_nodes} keyframes (max_steps, kf_dist, kf_rot) and their "
       f"scans of {config.n_beams} beams": PLANNER_MEMORY_COPIES * graph_bytes(config),
@@ -65,9 +65,8 @@ def planner_memory_bytes(config: SimConfig) -> int:
   import jax
 
   from jaxplore.config import make_params
-  from jaxplore.planners.base import get_planner
   from jaxplore.robot import planner_context
-  spec = get_planner(config.planner)
+  spec = config.planner
   if not spec.has_memory:
     return 0
   params = make_params(res=config.res, planner=dict(spec.defaults))

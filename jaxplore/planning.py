@@ -80,7 +80,7 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
       unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,
       frontier=mapping.frontier(free, unexplored(config, unknown), occupied),
       blacklist=state.blacklist,
-      pose_graph=(state.graph if planners_base.get_planner(config.planner).needs_pose_graph
+      pose_graph=(state.graph if config.planner.needs_pose_graph
                   else None))
 
 
@@ -112,7 +112,7 @@ def _propose(config: SimConfig, params: Params, state: State, robot, origin, key
   plan there is always certified) or a window around the robot
   (:mod:`jaxplore.planners.window`).
   """
-  spec = planners_base.get_planner(config.planner)
+  spec = config.planner
   shape = state.logodds.shape
   ctx = planner_context(config, shape)
   cell = robot.cell - origin
@@ -154,7 +154,7 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
   while the robot already stands on it cannot be resolved from here and is blacklisted, so no
   robot waits on it forever.
   """
-  spec = planners_base.get_planner(config.planner)
+  spec = config.planner
   key, k_plan = jax.random.split(state.key)
   running = ~state.done
   arrival_goal = state.goal
@@ -215,7 +215,7 @@ def needs_plan(config: SimConfig, state: State):
   """Whether a robot plans before its next step: it is running, and its last step was idle or
   ``replan_every`` steps have passed since its last plan (never, for a planner that commits to
   its goal: it plans again when its path is done or blocked)."""
-  if planners_base.get_planner(config.planner).commits:
+  if config.planner.commits:
     return ~state.done & ~state.busy
   return ~state.done & (~state.busy | (state.since_plan >= config.replan_every))
 
@@ -223,7 +223,7 @@ def needs_plan(config: SimConfig, state: State):
 def uses_window(config: SimConfig) -> bool:
   """Whether planning tries a window first (a ``windowed`` planner, a window smaller than the
   grid)."""
-  return (planners_base.get_planner(config.planner).windowed and
+  return (config.planner.windowed and
           0 < config.plan_window < min(config.height, config.width))
 
 

@@ -31,7 +31,7 @@ from jaxplore.config import (
   validate_params,
 )
 from jaxplore.maps import GridMap, load_world
-from jaxplore.planners import get_planner
+from jaxplore.planners import PlannerSpec, get_planner
 from jaxplore.runspec import STATIC_PARAMS, RunSpec
 
 
@@ -106,12 +106,11 @@ class Resolved:
         "world": {"name": grid.name, "shape": list(grid.shape), "res": grid.res,
                   "origin": list(grid.origin), "free_m2": grid.free_area,
                   "reachable_m2": float(self.world.n_reachable) * grid.res**2},
-        "sim_config": dataclasses.asdict(self.config),
+        "sim_config": sim.config_record(self.config),
         "params": {k: to_json_number(v) for k, v in dataclasses.asdict(self.params).items()
                    if k != "planner"},
         "planner_params": {k: to_json_number(v) for k, v in self.params.planner.items()},
-        "planner_settings": (None if self.config.planner_settings is None
-                             else dataclasses.asdict(self.config.planner_settings)),
+        "planner_settings": sim.config_record(self.config)["planner_settings"],
     }
 
 
@@ -129,8 +128,8 @@ def config_difference(recorded: dict | None, config: SimConfig) -> str | None:
   to a relative 1e-9 (an older record kept R_e in cells)."""
   if recorded is None:
     return None
-  then = dataclasses.asdict(sim.config_from_dict(recorded))
-  now = dataclasses.asdict(config)
+  then = sim.config_record(sim.config_from_dict(recorded))
+  now = sim.config_record(config)
   for name, value in now.items():
     if name == "strategy":
       continue  # how the batch ran, not what it computed; each backend has its own default
@@ -163,10 +162,11 @@ def _one_value(name: str, value):
   return value
 
 
-def split_planner_params(planner: str, planner_params) -> tuple[dict, dict]:
+def split_planner_params(planner: str | PlannerSpec, planner_params) -> tuple[dict, dict]:
   """(traced weights, static settings) of ``planner_params`` for ``planner``: every name must be
   one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
   spec = get_planner(planner)
+  planner = spec.name
   weights, settings = spec.split_overrides(planner_params)
   for name, value in weights.items():
     if any(isinstance(v, (str, bytes)) for v in (value if isinstance(value, tuple) else (value,))):
@@ -194,7 +194,8 @@ def split_params(params) -> tuple[dict, dict]:
   return traced, static
 
 
-def build_params(planner: str, preset, res: float, params=None, planner_params=None) -> Params:
+def build_params(planner: str | PlannerSpec, preset, res: float, params=None,
+                 planner_params=None) -> Params:
   """The traced :class:`Params` of a batch: the preset, the simulator parameters and the
   planner's default weights with the given ones (static names are left out: they go to the
   ``SimConfig``). Leaves are scalars, or arrays with one value per robot. No validation of
@@ -218,11 +219,10 @@ def resolve(spec: RunSpec) -> Resolved:
   """
   planner = get_planner(spec.planner)
   grid = load_grid(spec)
-  params = build_params(spec.planner, spec.preset, grid.res, dict(spec.params),
+  params = build_params(planner, spec.preset, grid.res, dict(spec.params),
                         dict(spec.planner_params))
-  settings = planner.resolve_settings(split_planner_params(spec.planner, spec.planner_params)[1])
-  overrides = dict(planner=spec.planner, pose_noise=spec.pose_noise, planner_settings=settings,
-                   **split_params(spec.params)[1])
+  planner = planner.with_settings(**split_planner_params(planner, spec.planner_params)[1])
+  overrides = dict(planner=planner, pose_noise=spec.pose_noise, **split_params(spec.params)[1])
   slam = overrides.get("slam", SimConfig.slam)
   for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
     if getattr(spec, name) is not None:

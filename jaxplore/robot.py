@@ -121,29 +121,19 @@ class Record:
 
 def keeps_entropy_map(config: SimConfig) -> bool:
   """Whether the state holds Li's entropy map: the planner reads it, or the config asks for it."""
-  return config.entropy_map or planners_base.get_planner(config.planner).needs_entropy_map
+  return config.entropy_map or config.planner.needs_entropy_map
 
 
 def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
                     ) -> planners_base.PlannerContext:
   """What the planner is told of the run (:class:`~jaxplore.planners.base.PlannerContext`), for
-  the whole grid or for a window of ``shape`` cells.
-
-  A config without ``planner_settings`` (one built by hand, not by :func:`jaxplore.resolve.resolve`)
-  gives the planner its registered defaults; settings of another planner's type, and a
-  planner that reads the pose graph without one, are refused.
+  the whole grid or for a window of ``shape`` cells. A planner that reads the pose graph without
+  one is refused.
   """
   height, width = shape if shape is not None else (config.height, config.width)
-  spec = planners_base.get_planner(config.planner)
-  settings = config.planner_settings if config.planner_settings is not None else spec.settings
-  if spec.settings is not None and not isinstance(settings, type(spec.settings)):
-    raise ConfigError(f"planner {config.planner!r}: planner_settings must be a "
-                      f"{type(spec.settings).__module__}.{type(spec.settings).__qualname__}, "
-                      f"got {type(settings).__qualname__}")
-  if settings is not None:
-    planners_base.check_settings(config.planner, settings)
+  spec = config.planner
   if spec.needs_pose_graph and not config.graph_nodes:
-    raise ConfigError(f"planner {config.planner!r} plans on the SLAM pose graph, but "
+    raise ConfigError(f"planner {spec.name!r} plans on the SLAM pose graph, but "
                       f"SimConfig.graph_nodes is 0: give it room for the run's keyframes "
                       f"(posegraph.keyframe_bound; jaxplore.resolve.resolve sets it)")
   return planners_base.PlannerContext(
@@ -152,7 +142,7 @@ def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
       dijkstra_tiles_after_rounds=config.dijkstra_tiles_after_rounds,
       max_inflation_cells=config.max_inflation_cells, max_steps=config.max_steps,
       r_e_cells=config.r_e / config.res if keeps_entropy_map(config) else 0.0,
-      settings=settings, strategy=config.strategy)
+      settings=spec.settings, strategy=config.strategy)
 
 
 def robot_view(config: SimConfig, world: World, state: State) -> planners_base.RobotView:
@@ -425,7 +415,7 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
       done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
-      memory=planners_base.get_planner(config.planner).initial_memory(planner_context(config),
+      memory=config.planner.initial_memory(planner_context(config),
                                                                       params),
       graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops,
                             beams=config.n_beams if config.slam == "scan_matching" else 0)
@@ -722,7 +712,7 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
     state = state.replace(graph=posegraph.observe(
         state.graph, state.pose_est, odometry_cov, motion.increment(delta_d, delta_phi), busy,
         state.logodds, world.origin, res, params, 2 * config.max_loop_cells + 2))
-  spec = planners_base.get_planner(config.planner)
+  spec = config.planner
   if spec.step_hook is not None:
     memory = spec.step_hook(planner_context(config), params, state.memory,
                             robot_view(config, world, state), state.logodds, busy)

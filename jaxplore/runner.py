@@ -93,7 +93,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
   bar = None
   if progress and not quiet:  # shown from the start: a compile can take a minute on a GPU
     from tqdm.auto import tqdm
-    label = f"{spec.planner} x{robots} on {grid.name}"
+    label = f"{spec.planner_name} x{robots} on {grid.name}"
     # smoothing=0: the rate is the mean since the start, the compile taken out below
     bar = tqdm(total=config.max_steps, unit="step", desc=f"{label} (compiling)", smoothing=0)
 
@@ -130,7 +130,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
         records=jax.tree.map(lambda leaf: leaf[:, :robots], rollout.records))
   episodes, curves = results.tables(config, grid, world, rollout.state, rollout.records,
                                     spec.rate_interval)
-  episodes.insert(0, "planner", spec.planner)
+  episodes.insert(0, "planner", spec.planner_name)
   episodes.insert(0, "world", grid.name)
   episodes.insert(2, "seed", spec.seed if spec.robot_seeds is None else list(spec.robot_seeds))
   described = resolved.describe()
@@ -141,7 +141,7 @@ def run(spec: RunSpec | None = None, *, out=None, progress: bool = True, devices
       "backend": jax.default_backend(), "device_kind": jax.local_devices()[0].device_kind,
       "sharded_over": n_dev, "seed": spec.seed,
       "robot_seeds": None if spec.robot_seeds is None else list(spec.robot_seeds),
-      "robots": robots, "planner": spec.planner, "preset": spec.preset,
+      "robots": robots, "planner": spec.planner_name, "preset": spec.preset,
       "start": None if spec.start is None else list(spec.start),
       "interrupted": rollout.interrupted, "stalled": rollout.stalled, **described,
       "rate_interval_m": spec.rate_interval,

@@ -138,10 +138,11 @@ def route_settings(params: Mapping | None, planner_params: Mapping | None,
   without saying whose it is, so a weight or setting of one of ``planners`` (names) may come in
   ``params`` (``--set``) and a simulator parameter in ``planner_params``. A name given to both
   tables is refused; an unknown planner is left to be refused where it is looked up."""
-  from jaxplore.planners import get_planner
+  from jaxplore.planners import PlannerSpec, get_planner
   params, planner_params = dict(params or {}), dict(planner_params or {})
+  one = isinstance(planners, (str, PlannerSpec))
   try:
-    specs = [get_planner(p) for p in ([planners] if isinstance(planners, str) else planners)]
+    specs = [get_planner(p) for p in ([planners] if one else planners)]
   except ConfigError:
     return params, planner_params
   theirs = [n for n in params if any(kind_of(str(n), s) in ("weight", "setting") for s in specs)]
@@ -155,7 +156,7 @@ def route_settings(params: Mapping | None, planner_params: Mapping | None,
   return params, planner_params
 
 
-def _refuse_unknown_params(params: Mapping, planner: str) -> None:
+def _refuse_unknown_params(params: Mapping, planner) -> None:
   """Refuses names in ``params`` that are no simulator parameter (a planner's were moved to
   ``planner_params`` before), listing the valid names."""
   unknown = sorted(set(map(str, params)) - set(SIM_PARAMS))
@@ -170,8 +171,8 @@ def _refuse_unknown_params(params: Mapping, planner: str) -> None:
   settings = planner_settings_of(spec)
   theirs = sorted(spec.defaults) + sorted(
       f.name for f in (dataclasses.fields(settings) if settings is not None else ()))
-  raise ConfigError(f"{message}; of planner {planner!r}: {', '.join(theirs) or 'none'} "
-                    f"(jaxplore settings --planner {planner} lists them with their ranges)")
+  raise ConfigError(f"{message}; of planner {spec.name!r}: {', '.join(theirs) or 'none'} "
+                    f"(jaxplore settings --planner {spec.name} lists them with their ranges)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,7 +181,8 @@ class RunSpec:
 
   Attributes:
     world: a built-in world name (``jaxplore maps``), a map_server YAML path, or a GridMap.
-    planner: a registered planner name.
+    planner: a registered planner's name, or a planner object
+      (:class:`jaxplore.planners.PlannerSpec`, registered or not).
     robots: batch size.
     seed: robot ``b``'s PRNG key is the ``b``-th of ``robots`` keys split from ``PRNGKey(seed)``.
     robot_seeds: or one seed per robot, robot ``b``'s key being ``PRNGKey(robot_seeds[b])`` (the
@@ -212,7 +214,7 @@ class RunSpec:
   """
 
   world: Any = "office"
-  planner: str = "nearest_frontier"
+  planner: Any = "nearest_frontier"
   robots: int = setting(16, "robots in the batch", owner="run", static=True, ge=1,
                        integer=True)
   seed: int = 0
@@ -271,8 +273,9 @@ class RunSpec:
       put("world", str(world))
     elif not isinstance(world, str) and type(world).__name__ != "GridMap":
       raise ConfigError(f"world must be a world name, a map YAML path or a GridMap, got {world!r}")
-    if not isinstance(self.planner, str):
-      raise ConfigError(f"planner must be a planner name, got {self.planner!r}")
+    from jaxplore.planners import PlannerSpec
+    if not isinstance(self.planner, (str, PlannerSpec)):
+      raise ConfigError(f"planner must be a planner name or a PlannerSpec, got {self.planner!r}")
     if isinstance(self.params, Mapping):  # a run setting named in --set / [set]
       for name in [n for n in self.params if n in RUN_SETTINGS]:
         value, mine = self.params[name], getattr(self, name)
@@ -342,12 +345,19 @@ class RunSpec:
       value = getattr(self, name)
       if name == "world" and not isinstance(value, str):
         value = {"grid": value.name}
+      elif name == "planner" and not isinstance(value, str):
+        value = value.name  # a PlannerSpec: results name it
       elif isinstance(value, Mapping):
         value = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
       elif isinstance(value, tuple):
         value = list(value)
       out[name] = value
     return out
+
+  @property
+  def planner_name(self) -> str:
+    """The planner's name (results and labels record it)."""
+    return self.planner if isinstance(self.planner, str) else self.planner.name
 
   @classmethod
   def from_json(cls, data: dict, **replace) -> RunSpec:

@@ -43,9 +43,19 @@ from jaxplore.robot import (
 from jaxplore.world import World, cell_centre, cell_of, make_world, sample_start, to_cells
 
 
+def config_record(config: SimConfig) -> dict:
+  """``config`` in JSON form (``config.json``'s ``sim_config``): every field, the planner as its
+  name and its static settings as ``planner_settings`` (None for a planner without any)."""
+  values = {f.name: getattr(config, f.name) for f in dataclasses.fields(SimConfig)}
+  settings = config.planner.settings
+  values["planner"] = config.planner.name
+  values["planner_settings"] = None if settings is None else dataclasses.asdict(settings)
+  return values
+
+
 def config_from_dict(recorded: dict) -> SimConfig:
-  """The :class:`SimConfig` a results folder recorded (``config.json``'s ``sim_config``), with
-  the planner's settings rebuilt as its settings dataclass.
+  """The :class:`SimConfig` a results folder recorded (:func:`config_record`), the planner looked
+  up by its name and given its recorded settings.
 
   Folders written before R_e became static recorded ``gain_radius_cells`` (R_e in cells).
   """
@@ -53,7 +63,7 @@ def config_from_dict(recorded: dict) -> SimConfig:
   if "gain_radius_cells" in values:
     values["r_e"] = float(values.pop("gain_radius_cells")) * float(values["res"])
   spec = get_planner(values.get("planner", SimConfig.planner))
-  values["planner_settings"] = spec.resolve_settings(values.get("planner_settings") or {})
+  values["planner"] = spec.with_settings(**(values.get("planner_settings") or {}))
   known = {f.name for f in dataclasses.fields(SimConfig)}
   return SimConfig(**{k: v for k, v in values.items() if k in known})
 
@@ -123,6 +133,7 @@ __all__ = [
     "World", "State", "Record", "make_world", "reset", "step", "record", "plan", "needs_plan",
     "plan_where_needed", "uses_window", "belief_view", "crop_maps", "robot_view",
     "planner_context", "epoch", "advance", "advance_unjitted", "reset_batch", "rollout",
-    "broadcast_params", "config_from_dict", "cell_of", "cell_centre", "to_cells", "sample_start",
+    "broadcast_params", "config_from_dict", "config_record", "cell_of", "cell_centre", "to_cells",
+    "sample_start",
     "REASONS", "RUNNING", "COMPLETE", "EXHAUSTED", "TIMEOUT",
 ]

@@ -38,7 +38,7 @@ def full_and_window_plans(config, world, params, states, window):
   def both(p, s):
     robot = sim.robot_view(config, world, s)
     key = jax.random.PRNGKey(0)
-    full = base.get_planner(config.planner).plan(sim.planner_context(config),
+    full = config.planner.plan(sim.planner_context(config),
                                                  sim.belief_view(config, p, s, robot.cell),
                                                  robot, p, key)
     origin = planning._window_origin(config, robot.cell, window)

@@ -2,7 +2,8 @@
 commitment, the per-step hook, static settings, and an entropy map only for planners that read it.
 
 A probe planner (nearest frontier that counts its plans in its memory, and whose step hook
-counts the steps in which the robot moved) is registered for these tests only.
+counts the steps in which the robot moved), an object the tests hand the engine without
+registering it.
 """
 
 import dataclasses
@@ -39,14 +40,10 @@ def count_moves(ctx, params, memory, robot, logodds, moved):
   return dict(memory, moved=memory["moved"] + moved.astype(jnp.int32))
 
 
-@pytest.fixture(scope="module")
-def probes():
-  for name, commits in (("probe_commit", True), ("probe_replan", False)):
-    base.register(name, summary="test probe", settings=ProbeSettings(), init_memory=init_memory,
-                  commits=commits, step_hook=count_moves)(plan_probe)
-  yield
-  for name in ("probe_commit", "probe_replan"):
-    base.unregister(name)
+# Planner objects, never registered: the engine is handed them, as a user's own planner.
+PROBES = {name: base.planner(name, plan_probe, summary="test probe", settings=ProbeSettings(),
+                             init_memory=init_memory, commits=commits, step_hook=count_moves)
+          for name, commits in (("probe_commit", True), ("probe_replan", False))}
 
 
 @functools.lru_cache(maxsize=None)
@@ -54,7 +51,7 @@ def rollout(planner, settings=ProbeSettings(), steps=48):
   grid = box_world(30, 40, walls=((0, 18, 20, 22),))
   params = make_params(res=grid.res, r_max=1.2, fov=2 * np.pi, r_robot=0.1)
   config = config_for(grid.shape, grid.res, params, max_steps=steps, replan_every=2, n_beams=72,
-                      planner=planner, planner_settings=settings, plan_window=0)
+                      planner=PROBES[planner].with_settings(settings), plan_window=0)
   world = sim.make_world(grid, 0.1)
   params = sim.broadcast_params(params, ROBOTS)
   keys = jax.random.split(jax.random.PRNGKey(3), ROBOTS)
@@ -65,14 +62,14 @@ def rollout(planner, settings=ProbeSettings(), steps=48):
 COMMITTED = ("probe_commit", ProbeSettings(plan_increment=3))
 
 
-def test_memory_is_carried_and_the_step_hook_runs_every_moving_step(probes):
+def test_memory_is_carried_and_the_step_hook_runs_every_moving_step():
   state = rollout(*COMMITTED)
   moved = state.steps - state.idle_steps
   np.testing.assert_array_equal(state.memory["moved"], moved)
   assert (state.memory["plans"] >= 3).all()
 
 
-def test_a_committed_planner_replans_only_when_its_path_is_done_or_blocked(probes):
+def test_a_committed_planner_replans_only_when_its_path_is_done_or_blocked():
   committed, replanning = rollout(*COMMITTED), rollout("probe_replan")
   # A committed robot plans at reset's first step and after each idle step (arrival or block).
   assert (committed.memory["plans"] // 3 <= committed.idle_steps + 1).all()
@@ -80,19 +77,37 @@ def test_a_committed_planner_replans_only_when_its_path_is_done_or_blocked(probe
   assert (replanning.memory["plans"] > replanning.idle_steps + 1).all()
 
 
-def test_static_settings_reach_the_planner(probes):
+def test_static_settings_reach_the_planner():
   state = rollout(*COMMITTED)  # each plan adds the setting's increment, 3 (1 by default)
   assert (state.memory["plans"] % 3 == 0).all() and (state.memory["plans"] > 0).all()
 
 
-def test_settings_resolve_from_user_values_and_unknown_names_are_refused(probes):
-  spec = base.get_planner("probe_commit")
+def test_settings_resolve_from_user_values_and_unknown_names_are_refused():
+  spec = PROBES["probe_commit"]
   assert spec.resolve_settings({"plan_increment": "4"}) == ProbeSettings(plan_increment=4)
   assert spec.split_overrides({"plan_increment": 2}) == ({}, {"plan_increment": 2})
   with pytest.raises(ValueError, match="no parameter"):
     spec.split_overrides({"plan_incremnt": 2})
   with pytest.raises(ValueError, match="must be a int"):
     spec.resolve_settings({"plan_increment": "x"})
+
+
+def test_a_planner_object_runs_without_being_registered():
+  """A user's own planner object goes to the resolver as it is: its settings are resolved into a
+  new object, the results name it, and nothing lists it under its name."""
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+  resolved = resolve(RunSpec(world=box_world(30, 40), planner=PROBES["probe_commit"], robots=2,
+                             max_steps=8, planner_params={"plan_increment": 2}))
+  assert resolved.config.planner == PROBES["probe_commit"].with_settings(plan_increment=2)
+  assert resolved.config.planner != PROBES["probe_commit"]
+  assert hash(resolved.config.planner) == hash(PROBES["probe_commit"].with_settings(
+      ProbeSettings(2)))
+  assert resolved.describe()["sim_config"]["planner"] == "probe_commit"
+  assert resolved.describe()["planner_settings"] == {"plan_increment": 2}
+  assert "probe_commit" not in base.planner_names()
+  with pytest.raises(ConfigError, match="unknown planner 'probe_commit'"):
+    base.get_planner("probe_commit")
 
 
 def test_the_entropy_map_is_kept_only_for_planners_that_read_it():
@@ -107,9 +122,10 @@ def test_the_entropy_map_is_kept_only_for_planners_that_read_it():
 
 
 def test_a_config_built_by_hand_gives_the_planner_its_registered_settings():
-  """``config_for`` without ``planner_settings`` (not through the resolver): the engine hands the
-  planner its registered defaults (reg and ahmed read them while tracing); another planner's
-  settings, and a pose-graph planner without a graph, are refused by name."""
+  """``config_for`` with a planner's name (not through the resolver): the config holds the
+  registered planner object and the engine hands the planner its registered settings (reg and
+  ahmed read them while tracing); another planner's settings, and a pose-graph planner without a
+  graph, are refused by name."""
   grid = box_world(20, 24)
   params = make_params(res=grid.res, r_max=1.0)
   with_settings = [name for name in base.planner_names() if base.get_planner(name).settings]
@@ -117,14 +133,12 @@ def test_a_config_built_by_hand_gives_the_planner_its_registered_settings():
   for name in base.planner_names():
     graph = {"graph_nodes": 16} if base.get_planner(name).needs_pose_graph else {}
     config = config_for(grid.shape, grid.res, params, max_steps=8, planner=name, **graph)
-    assert config.planner_settings is None
+    assert config.planner is base.get_planner(name)
     assert sim.planner_context(config).settings == base.get_planner(name).settings
     assert sim.planner_context(config, (8, 8)).settings == base.get_planner(name).settings
   ahmed_settings = base.get_planner("ahmed").settings
-  config = config_for(grid.shape, grid.res, params, max_steps=8, planner="reg",
-                      planner_settings=ahmed_settings)
-  with pytest.raises(ConfigError, match="'reg': planner_settings must be a jaxplore.planners.reg"):
-    sim.planner_context(config)
+  with pytest.raises(ConfigError, match="'reg': settings must be a jaxplore.planners.reg"):
+    base.get_planner("reg").with_settings(ahmed_settings)
   config = config_for(grid.shape, grid.res, params, max_steps=8, planner="ahmed")
   with pytest.raises(ConfigError, match="'ahmed' plans on the SLAM pose graph.*graph_nodes is 0"):
     sim.planner_context(config)

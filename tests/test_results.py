@@ -126,7 +126,7 @@ def test_a_planners_memory_and_settings_reach_the_results_folder(probe, tmp_path
   resolved = resolve(RunSpec(world=box_world(30, 40), planner=probe, robots=6, max_steps=12,
                              planner_params={"plan_increment": 3}))
   described = resolved.describe()
-  assert resolved.config.planner_settings == ProbeSettings(3)
+  assert resolved.config.planner.settings == ProbeSettings(3)
   assert described["planner_settings"] == {"plan_increment": 3}
   assert described["sim_config"]["planner_settings"] == {"plan_increment": 3}
   plans = np.arange(6, dtype=np.int32) * 3
@@ -161,7 +161,7 @@ def test_a_swept_static_setting_makes_a_group_per_value(probe):
   assert [(g.planner, g.names, len(g.rows)) for g in made.groups] == [
       (probe, ("plan_increment", "alpha"), 4), (probe, ("plan_increment", "alpha"), 4),
       ("nearest_frontier", ("alpha",), 4)]
-  assert [r.config.planner_settings for r in resolved[:2]] == [ProbeSettings(1), ProbeSettings(3)]
+  assert [r.config.planner.settings for r in resolved[:2]] == [ProbeSettings(1), ProbeSettings(3)]
   assert resolved[0].config != resolved[1].config  # two compiled programs
   with pytest.raises(ConfigError, match="plan_increment must be an integer, got 2.5"):
     resolve(RunSpec(world=box_world(30, 40), planner=probe, planner_params={"plan_increment": 2.5}))

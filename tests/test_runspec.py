@@ -192,7 +192,8 @@ def test_a_planners_text_setting_is_reachable_from_flags_toml_and_the_api(tmp_pa
     cli.main(["run", "--planner", "li2020", "--region", "disc", "--devices", "1", "--no-progress"])
   assert seen["planner_params"] == {"region": "disc"}
   settings = resolve(RunSpec(world="lab", planner="li2020", robots=1, max_steps=5,
-                             planner_params={"region": "disc", "eq21": "cell"})).config.planner_settings
+                             planner_params={"region": "disc", "eq21": "cell"})).config.planner
+  settings = settings.settings
   assert (settings.region, settings.eq21) == ("disc", "cell")
   for planner_params, match in [({"k1": "abc"}, "weight k1 must be a number, got 'abc'"),
                                 ({"region": "wall"}, "region must be one of visible, disc"),

@@ -451,17 +451,22 @@ SUMMARY_AGS = ("Placed & Castellanos' AGS: frontier of largest U1 (hallucinated 
                "spanning trees)")
 
 
-@base.register("ahmed", defaults=Weights, summary=SUMMARY_AHMED, settings=Settings(),
-               validate=validate, needs_pose_graph=True, commits=True)
 def plan_ahmed(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Eq 9: ``U = U1 + (1 − E/K)·ρ + γ``, largest wins (see the module docstring)."""
   return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings,
                     with_entropy=True)
 
 
-@base.register("ags", defaults=AgsWeights, summary=SUMMARY_AGS, settings=Settings(),
-               validate=validate, needs_pose_graph=True, commits=True)
+AHMED = base.planner("ahmed", plan_ahmed, defaults=Weights, summary=SUMMARY_AHMED,
+                     settings=Settings(), validate=validate, needs_pose_graph=True,
+                     commits=True)
+
+
 def plan_ags(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """AGS: ``U = U1`` (Eq 8), largest wins; ahmed's candidates and hallucination."""
   return plan_graph(ctx, view, robot, params, key, view.pose_graph, ctx.settings,
                     with_entropy=False)
+
+
+AGS = base.planner("ags", plan_ags, defaults=AgsWeights, summary=SUMMARY_AGS,
+                   settings=Settings(), validate=validate, needs_pose_graph=True, commits=True)

@@ -148,10 +148,15 @@ PlanFn = Callable[..., Plan]
 
 @dataclasses.dataclass(frozen=True)
 class PlannerSpec:
-  """A registered planner: its function and what it asks of the engine.
+  """A planner: its function, its settings and what it asks of the engine.
+
+  A static, hashable value (equal specs share a compiled program): the engine is handed this
+  object (``SimConfig.planner``), never a name to look up; a changed static setting is a new
+  spec (:meth:`with_settings`). Build one with :func:`planner`; :func:`register` lists it under
+  its name for the command line.
 
   Attributes:
-    name: registry name (command line ``--planner``).
+    name: the planner's name (command line ``--planner``; results record it).
     plan: the plan function (see the module docstring for its two signatures).
     defaults: traced weights, name -> default value (``params.planner[name]``; sweeping them
       never recompiles).
@@ -159,8 +164,8 @@ class PlannerSpec:
       the planner registered a weights dataclass: each weight's help and range, checked before
       compute.
     summary: one line for listings.
-    settings: the planner's static settings, a frozen dataclass instance holding their defaults
-      (``ctx.settings``; a change recompiles; they may fix shapes), or None.
+    settings: the planner's static settings, a frozen dataclass instance (``ctx.settings``; a
+      change recompiles; they may fix shapes), or None. A registered spec holds their defaults.
     validate: optional host-side check before compute,
       ``validate(weights: dict[str, np.ndarray], params, ctx) -> None``, raising ``ConfigError``.
     needs_entropy_map: the planner reads Li et al.'s entropy map I_e (Eq 1-3); the engine keeps
@@ -205,6 +210,37 @@ class PlannerSpec:
   windowed: bool = False
   preset: str | None = None
   memory_graph: Callable | None = None
+
+  def _key(self) -> tuple:
+    return (self.name, self.plan, tuple(sorted(self.defaults.items())), self.settings,
+            self.validate, self.needs_entropy_map, self.needs_pose_graph, self.init_memory,
+            self.commits, self.step_hook, self.blacklist_on_arrival, self.windowed, self.preset,
+            self.memory_graph)
+
+  def __eq__(self, other) -> bool:
+    return isinstance(other, PlannerSpec) and self._key() == other._key()
+
+  def __hash__(self) -> int:
+    return hash(self._key())
+
+  def __repr__(self) -> str:
+    return f"PlannerSpec({self.name!r}, settings={self.settings!r})"
+
+  def with_settings(self, settings=None, /, **overrides) -> PlannerSpec:
+    """This planner with other static settings: a settings instance of its type, or overrides
+    by name (converted and range-checked as :meth:`resolve_settings` does)."""
+    if settings is not None:
+      if self.settings is None or not isinstance(settings, type(self.settings)):
+        expected = ("no settings" if self.settings is None else
+                    f"a {type(self.settings).__module__}.{type(self.settings).__qualname__}")
+        raise ConfigError(f"planner {self.name!r}: settings must be {expected}, "
+                          f"got {type(settings).__qualname__}")
+      check_settings(self.name, settings)
+      base = dataclasses.replace(self, settings=settings)
+      return base.with_settings(**overrides) if overrides else base
+    if not overrides:
+      return self
+    return dataclasses.replace(self, settings=self.resolve_settings(overrides))
 
   @property
   def has_memory(self) -> bool:
@@ -322,14 +358,15 @@ def _as_number(value) -> float:
 _REGISTRY: dict[str, PlannerSpec] = {}
 
 
-def register(name: str, defaults=None, summary: str = "", *, settings=None,
-             validate: Callable | None = None, needs_entropy_map: bool = False,
-             needs_pose_graph: bool = False, init_memory: Callable | None = None,
-             commits: bool = False,
-             step_hook: Callable | None = None, blacklist_on_arrival: bool = False,
-             windowed: bool = False, preset: str | None = None,
-             memory_graph: Callable | None = None):
-  """Decorator adding a plan function to the registry under ``name`` (see :class:`PlannerSpec`).
+def planner(name: str, plan: PlanFn, defaults=None, summary: str = "", *, settings=None,
+            validate: Callable | None = None, needs_entropy_map: bool = False,
+            needs_pose_graph: bool = False, init_memory: Callable | None = None,
+            commits: bool = False, step_hook: Callable | None = None,
+            blacklist_on_arrival: bool = False, windowed: bool = False,
+            preset: str | None = None, memory_graph: Callable | None = None) -> PlannerSpec:
+  """A planner object for the engine (see :class:`PlannerSpec` for each argument), not
+  registered: pass it as ``SimConfig.planner`` or ``jaxplore.run(planner=...)`` directly, or
+  list it under its name with :func:`register`.
 
   ``defaults``: the traced weights, a dict name -> default, or a dataclass whose fields declare
   them (:func:`jaxplore.settings.setting`: default, help, range; the range is checked before
@@ -347,15 +384,29 @@ def register(name: str, defaults=None, summary: str = "", *, settings=None,
     defaults = {k: w.default for k, w in weights.items()}
   if settings is not None:
     check_settings(name, settings)
+  return PlannerSpec(
+      name=name, plan=plan, defaults=dict(defaults or {}), weights=weights, summary=summary,
+      settings=settings, validate=validate, needs_entropy_map=needs_entropy_map,
+      needs_pose_graph=needs_pose_graph, init_memory=init_memory, commits=commits,
+      step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival, windowed=windowed,
+      preset=preset, memory_graph=memory_graph)
+
+
+def register(spec: PlannerSpec | str, *args, **kwargs):
+  """Lists a planner under its name (the command line's ``--planner``, TOML files, sweeps).
+
+  ``register(spec)`` registers a :class:`PlannerSpec` (built with :func:`planner`) and returns
+  it. ``@register(name, defaults, summary, **options)`` is the decorator form for a plan
+  function (the arguments of :func:`planner`); it returns the function unchanged."""
+  if isinstance(spec, PlannerSpec):
+    if args or kwargs:
+      raise TypeError("register(spec) takes no other arguments")
+    _REGISTRY[spec.name] = spec
+    return spec
+  name = spec
 
   def wrap(fn):
-    _REGISTRY[name] = PlannerSpec(
-        name=name, plan=fn, defaults=dict(defaults or {}), weights=weights, summary=summary,
-        settings=settings,
-        validate=validate, needs_entropy_map=needs_entropy_map, needs_pose_graph=needs_pose_graph,
-        init_memory=init_memory,
-        commits=commits, step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival,
-        windowed=windowed, preset=preset, memory_graph=memory_graph)
+    register(planner(name, fn, *args, **kwargs))
     return fn
 
   return wrap
@@ -414,6 +465,8 @@ def load_plugins() -> None:
 def planner_preset(name) -> str | None:
   """The preset a registered planner brings (:attr:`PlannerSpec.preset`); None for an unknown
   name (refused later, where the planner is looked up)."""
+  if isinstance(name, PlannerSpec):
+    return name.preset
   load_plugins()
   spec = _REGISTRY.get(name) if isinstance(name, str) else None
   return None if spec is None else spec.preset
@@ -424,7 +477,12 @@ def unregister(name: str) -> None:
   _REGISTRY.pop(name, None)
 
 
-def get_planner(name: str) -> PlannerSpec:
+def get_planner(name: str | PlannerSpec) -> PlannerSpec:
+  """The planner registered under ``name`` (a :class:`PlannerSpec` is returned as it is)."""
+  if isinstance(name, PlannerSpec):
+    return name
+  if not isinstance(name, str):
+    raise ConfigError(f"planner must be a planner name or a PlannerSpec, got {name!r}")
   if name not in _REGISTRY:
     load_plugins()
   if name not in _REGISTRY:

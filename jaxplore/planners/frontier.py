@@ -18,8 +18,6 @@ from jaxplore.frontiers import plan_to, reachable_paths
 from jaxplore.planners import base
 
 
-@base.register("nearest_frontier", summary="go to the frontier cell with the smallest path cost",
-               windowed=True)
 def plan_nearest_frontier(config, view: base.BeliefView, robot: base.RobotView, params, key):
   node_cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
   dist, pred = reachable_paths(config, view, robot, node_cost)
@@ -35,9 +33,11 @@ def plan_nearest_frontier(config, view: base.BeliefView, robot: base.RobotView, 
                    n_candidates=jnp.sum(candidates).astype(jnp.int32))
 
 
-@base.register("fd",
-               summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)",
-               blacklist_on_arrival=True, windowed=True)
+NEAREST_FRONTIER = base.planner(
+    "nearest_frontier", plan_nearest_frontier, windowed=True,
+    summary="go to the frontier cell with the smallest path cost")
+
+
 def plan_fd(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Nearest frontier that never returns to a reached frontier goal (Ahmed et al.'s FD).
 
@@ -46,3 +46,8 @@ def plan_fd(config, view: base.BeliefView, robot: base.RobotView, params, key) -
   reached the end of its path.
   """
   return plan_nearest_frontier(config, view, robot, params, key)
+
+
+FD = base.planner(
+    "fd", plan_fd, blacklist_on_arrival=True, windowed=True,
+    summary="nearest frontier, each frontier goal blacklisted once reached (Ahmed's FD)")

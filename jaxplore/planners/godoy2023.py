@@ -228,8 +228,6 @@ def _paths(config, view, robot):
   return reachable_paths(config, view, robot, node_cost)
 
 
-@base.register("frt", defaults=FrtWeights,
-               summary="Godoy-Calvo Eq 12: frontier cluster of lowest C_d·d − C_i·size")
 def plan_frt(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Frontier utility, Godoy-Calvo Eq 12: ``U' = C_d·d − C_i·A``, lowest wins.
 
@@ -245,9 +243,10 @@ def plan_frt(config, view: base.BeliefView, robot: base.RobotView, params, key) 
   return _plan_lowest_cost(config, view, robot, dist, pred, candidates, cost)
 
 
-@base.register("ig", defaults=IgWeights,
-               summary="Godoy-Calvo Eq 3: frontier cluster of lowest C_d·d − C_i·f·I "
-                       "(expected entropy)")
+FRT = base.planner("frt", plan_frt, defaults=FrtWeights,
+                   summary="Godoy-Calvo Eq 12: frontier cluster of lowest C_d·d − C_i·size")
+
+
 def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
   """Dynamic entropy frontiers, Godoy-Calvo Eq 3: ``U = C_d·d − C_i·f·I``, lowest wins.
 
@@ -266,3 +265,8 @@ def plan_ig(config, view: base.BeliefView, robot: base.RobotView, params, key) -
   d = _distance(candidates, dist, w)
   cost = w["C_d"] * d - w["C_i"] * hood.factor * hood.info
   return _plan_lowest_cost(config, view, robot, dist, pred, candidates, cost)
+
+
+IG = base.planner("ig", plan_ig, defaults=IgWeights,
+                  summary="Godoy-Calvo Eq 3: frontier cluster of lowest C_d·d − C_i·f·I "
+                          "(expected entropy)")

@@ -211,10 +211,6 @@ def candidate_poses(reference, settings: Settings, res: float):
   return cells, yaws, group
 
 
-@base.register("gpbo", defaults=Weights, settings=Settings(),
-               init_memory=init_memory, commits=True,
-               summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, GP-UCB "
-                       "(Li's Method 29)")
 def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, memory):
   """One GP/BO planning round for one robot (see the module docstring). Returns (Plan, memory)."""
   settings: Settings = ctx.settings
@@ -323,3 +319,9 @@ def plan_gpbo(ctx, view: base.BeliefView, robot: base.RobotView, params, key, me
   plan = jax.tree.map(lambda a, b: jnp.where(rescan, a, b), turn, plan)
   turns = jnp.where(valid_plan, 0, memory.turns + rescan.astype(jnp.int32))
   return plan, Memory(raw=raw, turns=turns.astype(jnp.int32))
+
+
+GPBO = base.planner(
+    "gpbo", plan_gpbo, defaults=Weights, settings=Settings(), init_memory=init_memory,
+    commits=True, summary="Bai et al.'s GP/BO: virtual-scan MI per metre predicted by a GP, "
+                          "GP-UCB (Li's Method 29)")

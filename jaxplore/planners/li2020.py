@@ -679,9 +679,6 @@ def average_observable_entropy(view: base.BeliefView, radius: float):
   return jnp.sum(jnp.where(observable, entropy, 0.0)) / jnp.maximum(jnp.sum(observable), 1)
 
 
-@base.register("li2020", defaults=Weights, settings=Settings(), validate=validate,
-               needs_entropy_map=True, init_memory=init_memory, commits=True,
-               summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")
 def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key, memory):
   """One planning round of Algorithm 1 (see the module docstring). Returns (Plan, memory)."""
   weights = params.planner
@@ -761,3 +758,9 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
                    cost=sp.dist.ravel()[chosen] * config.res,
                    n_candidates=jnp.sum(candidates).astype(jnp.int32))
   return plan, memory
+
+
+LI2020 = base.planner(
+    "li2020", plan_li2020, defaults=Weights, settings=Settings(), validate=validate,
+    needs_entropy_map=True, init_memory=init_memory, commits=True,
+    summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")

@@ -714,29 +714,39 @@ _COMMON: dict[str, Any] = dict(
     commits=True, preset="toriz", memory_graph=exploration_graph)
 
 
-@base.register("ereg", summary="Toriz & Sánchez's Extended REG: deterministic frontier hierarchy, "
-               "frontier control list, back to the start", **_COMMON)
 def plan_ereg(ctx, view, robot, params, key, memory):
   """Extended REG (Toriz & Sánchez, Fig 1); see the module docstring."""
   return _plan("ereg", ctx, view, robot, params, key, memory)
 
 
-@base.register("reg", **_COMMON,
-               summary="Toriz et al.'s REG: a random arc and direction, frontier control list")
+EREG = base.planner("ereg", plan_ereg, **_COMMON,
+                    summary="Toriz & Sánchez's Extended REG: deterministic frontier "
+                            "hierarchy, frontier control list, back to the start")
+
+
 def plan_reg(ctx, view, robot, params, key, memory):
   """REG: Fig 1 with the arc and the direction in it drawn uniformly."""
   return _plan("reg", ctx, view, robot, params, key, memory)
 
 
-@base.register("srg", summary="SRG (Franchi et al.): arcs drawn by width, bridges, no control list",
-               **_COMMON)
+REG = base.planner("reg", plan_reg, **_COMMON,
+                   summary="Toriz et al.'s REG: a random arc and direction, frontier control list")
+
+
 def plan_srg(ctx, view, robot, params, key, memory):
   """SRG as the Toriz introduction describes it; see the module docstring."""
   return _plan("srg", ctx, view, robot, params, key, memory)
 
 
-@base.register("srt", **_COMMON,
-               summary="SRT (Oriolo et al.): a random tree of LSRs, backtracking to the root")
+SRG = base.planner("srg", plan_srg, **_COMMON,
+                   summary="SRG (Franchi et al.): arcs drawn by width, bridges, no control "
+                           "list")
+
+
 def plan_srt(ctx, view, robot, params, key, memory):
   """SRT as the Toriz introduction describes it; see the module docstring."""
   return _plan("srt", ctx, view, robot, params, key, memory)
+
+
+SRT = base.planner("srt", plan_srt, **_COMMON,
+                   summary="SRT (Oriolo et al.): a random tree of LSRs, backtracking to the root")

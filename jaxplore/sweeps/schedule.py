@@ -24,7 +24,7 @@ from typing import cast
 
 import numpy as np
 
-from jaxplore import __version__, driver, memory
+from jaxplore import __version__, driver, memory, sim
 from jaxplore.config import ConfigError
 from jaxplore.maps import GridMap, load_world
 from jaxplore.planners import get_planner
@@ -301,7 +301,7 @@ def make_schedule(spec: SweepSpec, out: Path | None, grids: dict, chunk_size,
     group = dataclasses.replace(
         draft, chunk_size=size,
         chunk_epochs=driver.chunk_epochs_for(r.config, spec.base.chunk_epochs),
-        max_steps=r.config.max_steps, sim_config=jsonable(dataclasses.asdict(r.config)),
+        max_steps=r.config.max_steps, sim_config=jsonable(sim.config_record(r.config)),
         first_chunk=first)
     first += group.n_chunks
     groups.append(group)

@@ -174,8 +174,8 @@ def test_gpbo_explores_a_box_world_with_rooms_to_completion():
   params = make_params(res=grid.res, r_max=2.5, fov=2 * math.pi, r_robot=0.1, planner=gpbo.DEFAULTS)
   # plan_chunk=1: the engine compiles the planner once, unbatched (the conformance test runs it
   # vmapped).
-  config = config_for(grid.shape, grid.res, params, max_steps=300, n_beams=72, planner="gpbo",
-                      planner_settings=SETTINGS, plan_window=0, plan_chunk=1)
+  config = config_for(grid.shape, grid.res, params, max_steps=300, n_beams=72,
+                      planner=gpbo.GPBO.with_settings(SETTINGS), plan_window=0, plan_chunk=1)
   world = sim.make_world(grid, 0.1)
   robots = 2
   state, records = sim.rollout(config, world, sim.broadcast_params(params, robots),
