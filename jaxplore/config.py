@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxplore import posegraph, pytrees
 from jaxplore.errors import ConfigError, shown
+from jaxplore.sensors import SENSORS, RaySensor, get_sensor
 from jaxplore.settings import declared, setting
 
 # The SLAM models (SimConfig.slam; jaxplore.slam.model).
@@ -129,6 +130,9 @@ class SimConfig:
   graph_nodes: int = 0
   graph_loops: int = 256
   max_loop_cells: int = 40
+  sensor: Any = setting("lidar", "the range sensor (jaxplore.sensors): lidar or depth_cone; a "
+                        "preset may choose it; from Python, a sensor object", owner="sensor",
+                        static=True, choices=tuple(SENSORS), objects=RaySensor)
   slam: str = setting("oracle", "the SLAM model: oracle relocalises by the true pose; "
                       "scan_matching runs a graph SLAM on the robot's own map (turns pose_noise "
                       "on)", owner="slam", static=True, choices=SLAM_MODELS)
@@ -189,6 +193,9 @@ class SimConfig:
       raise ConfigError(f"res must be a positive number of metres, got {self.res!r}")
     for name, declaration in STATIC_SETTINGS.items():
       object.__setattr__(self, name, declaration.convert(getattr(self, name), name))
+    object.__setattr__(self, "sensor", get_sensor(self.sensor))
+    for name, declaration in declared(type(self.sensor)).items():  # a sensor's own settings
+      declaration.check(getattr(self.sensor, name), f"sensor {self.sensor.name!r}: {name}")
     if self.map_hole_cells == -1:
       object.__setattr__(self, "map_hole_cells", MAP_HOLE_CELLS[self.slam])
     if self.slam == "scan_matching":
@@ -217,11 +224,14 @@ class Params:
   simulator knowing them).
   """
 
-  r_max: Any = setting(15.0, "the lidar's range", owner="lidar", unit="m", gt=0)
-  fov: Any = setting(math.radians(190.0), "the lidar's field of view", owner="lidar", unit="rad",
-                     gt=0, le=2 * math.pi)
-  range_noise: Any = setting(0.0, "std of the Gaussian error of each measured range",
-                             owner="lidar", unit="m", ge=0)
+  r_max: Any = setting(15.0, "the sensor's range", owner="sensor", unit="m", gt=0)
+  fov: Any = setting(math.radians(190.0), "the sensor's field of view", owner="sensor",
+                     unit="rad", gt=0, le=2 * math.pi)
+  range_noise: Any = setting(0.0, "std of the Gaussian error of each measured range (the lidar); "
+                             "of a range of 1 m, growing with its square (the depth cone)",
+                             owner="sensor", unit="m", ge=0)
+  min_range: Any = setting(0.0, "the sensor reports nothing along a beam whose obstacle is "
+                           "nearer than this", owner="sensor", unit="m", ge=0)
   l_free: Any = setting(-1.0, "inverse sensor model: added to a cell a beam passes through",
                         owner="belief", unit="log-odds", lt=0)
   l_occ: Any = setting(2.0, "inverse sensor model: added to the cell a beam ends in",
@@ -314,6 +324,7 @@ class Preset:
   """A paper's sensor and robot: parameter overrides and static sizes.
 
   Attributes:
+    sensor: the range sensor (:data:`jaxplore.sensors.SENSORS`).
     step_cells: when set, a motion step moves the robot this many cells (``v_max = step_cells *
       res``, ``dt = 1 s``), whatever the resolution: a grid simulator that moves one waypoint
       (orthogonal or diagonal, so √2 cells) per step. Otherwise ``dt = res / v_max``.
@@ -325,6 +336,7 @@ class Preset:
   n_beams: int
   replan_every: int = 8
   step_cells: float | None = None
+  sensor: str = "lidar"
 
 
 PRESETS: dict[str, Preset] = {
@@ -345,6 +357,13 @@ PRESETS: dict[str, Preset] = {
         "Explore-Bench grid simulator: 3.5 m, 360°, one cell per step, replanning every step",
         dict(r_max=3.5, fov=math.radians(360.0), w_max=1e3, r_robot=0.1), n_beams=360,
         replan_every=1, step_cells=math.sqrt(2.0)),
+    # Intel RealSense D435 (datasheet, D400 series): 87° horizontal depth field of view, depth
+    # from ~0.3 m, error under 2 % at 2 m (4 cm: 1 cm at 1 m growing with the square).
+    "depth_camera": Preset(
+        "depth_camera", "a depth camera's cone (RealSense D435-like): 4 m, 87°, from 0.3 m, "
+        "error 1 cm at 1 m growing with the square", dict(r_max=4.0, fov=math.radians(87.0),
+        range_noise=0.01, min_range=0.3, v_max=0.3, w_max=1.0), n_beams=160,
+        sensor="depth_cone"),
 }
 
 
@@ -399,6 +418,10 @@ def validate_params(params: Params, config: SimConfig) -> None:
   max_r = config.max_range_cells * config.res
   check("r_max", p.r_max, lambda a: a <= max_r + 1e-6,
         f"<= max_range_cells * res = {max_r:.3g} m (raise SimConfig.max_range_cells)")
+  near = np.asarray(p.min_range, np.float64) >= np.asarray(p.r_max, np.float64)
+  if np.any(near):
+    raise ConfigError(f"min_range {shown(p.min_range, near)} m is not below r_max "
+                      f"{shown(p.r_max, near)} m: the sensor would see nothing")
   # A step ends at its waypoint, a neighbouring cell (diagonal at most): a longer reach would
   # count time not driven.
   reach = np.asarray(p.v_max, np.float64) * np.asarray(p.dt, np.float64)
@@ -556,6 +579,7 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *,
   if preset is not None:
     kwargs["n_beams"] = PRESETS[preset].n_beams
     kwargs["replan_every"] = PRESETS[preset].replan_every
+    kwargs["sensor"] = PRESETS[preset].sensor
   kwargs.update(overrides)
   if "plan_window" not in overrides:
     reach = plan_reach_cells(kwargs["max_range_cells"], kwargs["res"])

@@ -27,8 +27,9 @@ def _largest_part(config: SimConfig) -> str:
       f"the {config.height}x{config.width} grid at {config.res:g} m/cell (--res)":
           cells * (GRID_BYTES_PER_CELL + ROBOT_BYTES_PER_CELL),
       f"the per-step records of max_steps={config.max_steps}": config.max_steps * 10 * 4,
-      f"the lidar buffers of {config.n_beams} beams of {config.max_range_cells} cells (r_max)":
-          config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6,
+      f"the {config.sensor.name}'s buffers of {config.n_beams} beams of "
+      f"{config.max_range_cells} cells (r_max)":
+          config.sensor.buffer_bytes(config.n_beams, config.max_range_cells),
   }
   return max(parts, key=parts.__getitem__)
 
@@ -115,7 +116,7 @@ def estimate_bytes(config: SimConfig, robots: int) -> int:
     per_robot = (cells * LOCKSTEP_BYTES_PER_CELL + records
                  + PLANNER_MEMORY_COPIES * (planner_memory_bytes(config) + graph_bytes(config)))
     return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + planning + robots * per_robot
-  lidar = config.n_beams * (4 * config.max_range_cells + 2) * 4 * 6
+  lidar = config.sensor.buffer_bytes(config.n_beams, config.max_range_cells)
   per_robot = (cells * ROBOT_BYTES_PER_CELL + records + lidar
                + PLANNER_MEMORY_COPIES * (planner_memory_bytes(config) + graph_bytes(config)))
   return FIXED_BYTES + cells * GRID_BYTES_PER_CELL + robots * per_robot

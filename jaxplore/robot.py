@@ -177,9 +177,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
     (params, pose, pose_est, cov, key, active, angles, dirs, est_dirs, odometry, totals) = inputs
     true_uv = to_cells(pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
     noise_key, _ = jax.random.split(key)
-    scan = sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles,
-                          params.r_max / res, n_cross, key=noise_key,
-                          noise_cells=params.range_noise / res, active=active, dirs=dirs)
+    scan = config.sensor.measure(world.truth_framed, shape, true_uv[0], true_uv[1], angles,
+                                 params, res, n_cross, noise_key, active, dirs)
     def seen_from(pose_est, est_dirs=None):
       """The scan as integrated from ``pose_est``, where it is seen from, its end cells and beam
       directions (``est_dirs``: those directions, when already computed)."""
@@ -196,7 +195,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       return seen, est_uv, end_rows, end_cols, est_dirs
 
     if slam:
-      offsets = slam_model.beam_offsets(params, config.n_beams)
+      offsets = config.sensor.offsets(params, config.n_beams)
       # The robot's graph without its stored scans: those (most of the graph's bytes) stay in
       # the batch's array, written a row per keyframe and read only to close a loop.
       own_graph = jax.tree.map(lambda g: g[robot], graph.replace(ranges=None))
@@ -261,7 +260,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
 
   # Beam directions are computed here, for the whole batch at once, rather than inside the
   # per-robot loop (see sensor.measure).
-  angles = sensor.beam_angles(state.pose[2], params.fov, config.n_beams)
+  angles = config.sensor.angles(state.pose[2], params, config.n_beams)
   est_angles = angles - state.pose[2] + state.pose_est[2] if config.pose_noise else angles
   if odometry is None:  # no motion (the reset's first scan)
     odometry = (jnp.zeros_like(state.pose), jnp.zeros_like(state.cov), state.pose_est)

@@ -30,7 +30,7 @@ import sys
 import types
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -49,6 +49,8 @@ from jaxplore.settings import declared, setting
 # own), as SimConfig declares them.
 STATIC_PARAMS = tuple(STATIC_SETTINGS)
 WORD_PARAMS = tuple(name for name, s in STATIC_SETTINGS.items() if s.choices)  # e.g. slam
+# Word settings that also take an object (a sensor): name -> its type.
+OBJECT_PARAMS = {name: s.objects for name, s in STATIC_SETTINGS.items() if s.objects is not None}
 SIM_PARAMS = PARAM_FIELDS + tuple(n for n in STATIC_PARAMS if n not in PARAM_FIELDS)
 SEED_LIMIT = 2**32  # a PRNG seed is a uint32: larger seeds would alias smaller ones
 AXES = ("world", "planner", "robots", "seed", "robot_seeds")  # what a sweep varies row by row
@@ -127,8 +129,9 @@ def _mapping(values, what: str, text_allowed: bool = False, words=()) -> Mapping
   if not isinstance(values, Mapping):
     raise ConfigError(f"{what} must map names to numbers, got {values!r}")
   return types.MappingProxyType({
-      str(k): _value(v, f"{what}[{k!r}]", text_allowed or (str(k) in words and not
-                                                              isinstance(v, (bool, np.bool_))))
+      str(k): v if isinstance(v, OBJECT_PARAMS.get(str(k), ())) else
+      _value(v, f"{what}[{k!r}]", text_allowed or (str(k) in words and not
+                                                   isinstance(v, (bool, np.bool_))))
       for k, v in values.items()})
 
 
@@ -347,8 +350,10 @@ class RunSpec:
         value = {"grid": value.name}
       elif name == "planner" and not isinstance(value, str):
         value = value.name  # a PlannerSpec: results name it
-      elif isinstance(value, Mapping):
-        value = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
+      elif isinstance(value, Mapping):  # an object (a sensor) is recorded by its name
+        value = {k: list(v) if isinstance(v, tuple) else
+                 cast(Any, v).name if isinstance(v, tuple(OBJECT_PARAMS.values())) else v
+                 for k, v in value.items()}
       elif isinstance(value, tuple):
         value = list(value)
       out[name] = value

@@ -45,6 +45,8 @@ class Setting:
       excluded.
     integer: a whole number (a count or a size).
     choices: the words it may take (a word-valued setting), else empty.
+    objects: a type whose instances it takes besides its words (a sensor object for ``sensor``,
+      which names one), or None.
     boolean: a switch, true or false.
     host: used on the host only (metrics, progress), never by the compiled program.
     unset: what leaving it unset (None) means, where it may be left unset (the value is then
@@ -63,6 +65,7 @@ class Setting:
   high_open: bool = False
   integer: bool = False
   choices: tuple[str, ...] = ()
+  objects: type | None = None
   boolean: bool = False
   host: bool = False
   unset: str = ""
@@ -107,6 +110,8 @@ class Setting:
       if not isinstance(value, (bool, np.bool_)):
         raise ConfigError(f"{what} must be true or false, got {value!r}")
       return
+    if self.objects is not None and isinstance(value, self.objects):
+      return
     if self.choices:
       if value not in self.choices:
         raise ConfigError(f"{what} must be {self.range_text}, got {value!r}")
@@ -140,7 +145,7 @@ class Setting:
     """A checked value (:meth:`check`) as the setting holds it: an int for an integer setting,
     a float or a word otherwise."""
     self.check(value, what)
-    if value is None or self.choices:
+    if value is None or self.choices or self.objects is not None:
       return value
     if self.boolean:
       return bool(value)
@@ -157,7 +162,8 @@ def _number_text(value: float) -> str:
 def setting(default, help: str, *, owner: str = "", unit: str = "", static: bool = False,
             gt: float | None = None, ge: float | None = None, lt: float | None = None,
             le: float | None = None, integer: bool = False, choices: Iterable[str] = (),
-            boolean: bool = False, host: bool = False, unset: str = "", name: str = "") -> Any:
+            objects: type | None = None, boolean: bool = False, host: bool = False,
+            unset: str = "", name: str = "") -> Any:
   """A dataclass field declaring a setting (see :class:`Setting`): ``gt``/``ge`` and
   ``lt``/``le`` give its open or closed bounds; ``name``, the setting's name where it cannot
   be the field's (a Python keyword such as ``lambda``)."""
@@ -166,7 +172,8 @@ def setting(default, help: str, *, owner: str = "", unit: str = "", static: bool
   declaration = Setting(default=default, help=help, owner=owner, unit=unit, static=static,
                         low=gt if gt is not None else ge, low_open=gt is not None,
                         high=lt if lt is not None else le, high_open=lt is not None,
-                        integer=integer, choices=tuple(choices), boolean=boolean,
+                        integer=integer, choices=tuple(choices), objects=objects,
+                        boolean=boolean,
                         host=host, unset=unset, name=name)
   return dataclasses.field(default=default, metadata={"setting": declaration})
 

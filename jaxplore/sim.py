@@ -44,11 +44,13 @@ from jaxplore.world import World, cell_centre, cell_of, make_world, sample_start
 
 
 def config_record(config: SimConfig) -> dict:
-  """``config`` in JSON form (``config.json``'s ``sim_config``): every field, the planner as its
-  name and its static settings as ``planner_settings`` (None for a planner without any)."""
+  """``config`` in JSON form (``config.json``'s ``sim_config``): every field, the planner and the
+  sensor as their names and the planner's static settings as ``planner_settings`` (None for a
+  planner without any)."""
   values = {f.name: getattr(config, f.name) for f in dataclasses.fields(SimConfig)}
   settings = config.planner.settings
   values["planner"] = config.planner.name
+  values["sensor"] = config.sensor.name
   values["planner_settings"] = None if settings is None else dataclasses.asdict(settings)
   return values
 
