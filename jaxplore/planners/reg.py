@@ -15,8 +15,9 @@ Four planners with one per-robot memory, the *exploration graph* (Toriz & Sánch
   to its parent in the tree; exploration stops back at the root.
 * ``srt`` — SRT (Oriolo et al. 2004): a tree; a direction drawn uniformly over the free bins of
   the current LSR, the new node ``r·ρ`` along it valid when the belief lets the robot stand and
-  arrive there and it is at least ``d_min`` from every node, up to ``I_max`` draws, else back to
-  the parent; exploration stops when the root has no valid draw.
+  arrive there and it is at least ``d_min`` from every node, up to ``I_max`` draws; with none
+  valid, a turn in place toward the node's unseen directions if it has any (below), else back to
+  the parent; exploration stops when the root has no valid draw and nothing unseen.
 
 The algorithm (Fig 1) as this module runs it, one decision per call of the plan function (the
 robot drives to its goal before deciding again; the engine calls the planner when the path is
@@ -70,6 +71,18 @@ Decisions (the paper is silent; see also the module's settings):
   place: the robot faces the arc, and the current node's LSR is cast again instead of a node
   being added beside it. A step may not end within ``d_sep`` of another node (the same step
   from the same arc again makes no progress).
+* SRT's look around. Oriolo et al.'s LSR is perceived all around the node (their robots sense
+  360°); with a narrower sensor (the ``toriz`` preset's 240°) the sector behind the robot is
+  unseen when it arrives at a node, and its free bins' rays stop on unknown space beside the
+  robot: too short for a step of at least ``d_min``. A robot that started facing a wall had no
+  valid draw at all and SRT ended at its root at once (``corridors``, seed 2: 3.5 % coverage).
+  So when no draw is valid and the node has *unseen* bins (free, the ray stopping on unknown
+  space, ``r·ρ < d_min``), the robot turns in place to face the widest run of them (its middle,
+  or ``fov/2`` in from its end nearer the heading when the sensor's field of view is narrower
+  than the run), the node's LSR is cast again and the draws are made again. The bins looked at
+  leave the node's ``open`` row (SRT's record of the bins not yet looked at) and come back only
+  where the new ray grew, so a node is turned at a bounded number of times. Looking only when
+  the draws fail (not at every node) keeps every episode without such a node unchanged.
 * REG and SRG: a drawn direction none of whose steps works closes the bin it lies in, not the
   whole F_det around it (Extended REG's ranked approach points close F_det, step 4d).
 * A robot whose path ends away from its destination (a path cut by the path capacity, a cell
@@ -185,14 +198,16 @@ class Memory:
     rho: f32[N, B] LSR ray lengths, cells.
     obstacle: bool[N, B] bins whose ray stops on an occupied cell before R (the others, and
       with ``shadow_arcs`` the shadow bins among them, are free bins).
-    open: bool[N, B] free bins still on the node's frontier.
+    open: bool[N, B] free bins still on the node's frontier (SRT: free bins it has not turned
+      to look at).
     adjacent: bool[N, N] graph edges (symmetric).
     parent: i32[N] the node each node was reached from (-1 for node 0 and unused slots).
     count: i32 nodes in use.
     current: i32 the node the robot is at, or last left (-1 before node 0).
     mode: i32 START, EXPLORE (driving to a new node), TRAVEL (driving to node ``hop``), DONE.
     pending: bool[B] F_det: the current node's bins being explored (closed until verified).
-    turn: bool the exploration step is a turn in place (a step shorter than ``arrive_tol``).
+    turn: bool the exploration step is a turn in place (a step shorter than ``arrive_tol``; SRT:
+      a look at unseen directions).
     dest: f32[2] where the robot is driving (u, v): q_dest, or node ``hop``.
     phi: f32 the approach direction φ* of the current exploration step, rad.
     hop: i32 the node driven to in TRAVEL (-1 otherwise).
@@ -433,6 +448,30 @@ def _select_srt(obstacle_c, rho_c, q_c, uv, valid_nodes, r, d_min_cells, i_max, 
   return ok[first], phi[first], dest[first]
 
 
+def _look_srt(unseen, theta, fov):
+  """SRT's turn in place: where to face to see the widest run of ``unseen`` bins (bool[B]).
+
+  The run's middle when the field of view ``fov`` (rad) spans it, else ``fov/2`` in from its end
+  nearer the heading ``theta`` (the rest of the run is looked at by a later turn). Returns
+  (any, phi, looked bool[B]: the run's bins within ``phi ± fov/2``, and always the bin of
+  ``phi``).
+  """
+  bins = unseen.shape[0]
+  runs = K.circular_runs(unseen)
+  step = 2 * jnp.pi / bins
+  pick = jnp.argmax(jnp.where(runs.valid, runs.length, -1))  # the widest; ties to the first
+  lo = -jnp.pi + runs.start[pick].astype(jnp.float32) * step
+  width = runs.length[pick].astype(jnp.float32) * step
+  lo_first = jnp.abs(K.wrap(lo - theta)) <= jnp.abs(K.wrap(lo + width - theta))
+  phi = jnp.where(width <= fov, lo + 0.5 * width,
+                  jnp.where(lo_first, lo + 0.5 * fov, lo + width - 0.5 * fov))
+  in_run = _run_bins(runs, bins)[pick]
+  index = jnp.arange(bins)
+  looked = in_run & ((jnp.abs(K.wrap(K.bin_angles(bins) - phi)) <= 0.5 * fov) |
+                     (index == K.bin_of(phi, bins)))
+  return jnp.any(unseen), K.wrap(phi), looked
+
+
 def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, params, key,
           mem: Memory):
   s: Settings = ctx.settings
@@ -569,8 +608,18 @@ def _plan(variant: str, ctx, view: base.BeliefView, robot: base.RobotView, param
     found, phi, dest = _select_srt(blocked_c, rho[c], q_c, uv, valid_nodes, r, w["d_min"] / res,
                                    w["I_max"], standable, k_explore, s.max_draws)
     found = found & may_explore
-    fdet = jnp.zeros((bins,), bool)
-    turn = jnp.bool_(False)
+    # No valid draw: before giving the node up (back to the parent, or the end at the root), the
+    # robot turns to look at its unseen directions, free bins whose ray stops on unknown space
+    # too near to step along (r·ρ < d_min), and the node's LSR is cast again (step 1).
+    unseen = open_[c] & ~obstacle[c] & (rho[c] < radius) & (r * rho[c] < w["d_min"] / res)
+    any_unseen, look_phi, looked = _look_srt(unseen, theta, params.fov)
+    look = may_explore & ~found & any_unseen
+    open_ = _set_row(open_, open_[c] & ~looked, c, look)
+    phi = jnp.where(look, look_phi, phi)
+    dest = jnp.where(look, q_c, dest)
+    fdet = looked & look
+    turn = look
+    found = found | look
   else:
     tol = w["arrive_tol"] / res
     sep = w["d_sep"] / res
