@@ -29,10 +29,12 @@ One planning round for one robot:
 4. Correction (Eq 18–19): det Σ never decreases along a path (Eq 14), so a candidate path is cut
    at its last waypoint with ``det Σ ≤ det Σ_max``: its nearest such ancestor in the tree.
 5. Selection: the corrected path with the largest gain (``select = 0``) or gain per metre
-   (``select = 1``), the region of the robot's own position included (Eq 20 sums over every
-   road-mark point of the path). If no path has a positive gain, the path with the largest
-   re-explore metric (uncut: relocalising is its purpose) is taken while frontiers remain or Σ
-   is above its limit; otherwise nothing is left (the episode ends).
+   driven (``select = 1``), where a path's gain is what its road-mark points p_1 ... p_m add to
+   the region of P_0, the robot's own position (Li's Figure 5; its scan is in the maps already,
+   Algorithm 1 line 2): entropy that no scan from where the robot stands removed is no path's
+   gain. If no path has a positive gain, the path with the largest re-explore metric (uncut:
+   relocalising is its purpose) is taken while frontiers remain or Σ is above its limit;
+   otherwise nothing is left (the episode ends).
 6. Stop (Algorithm 1, line 23) when the average entropy of the observable belief falls below
    ``E_min`` (0 disables it; the engine's coverage goal usually ends the episode first).
 7. The robot follows the chosen path to its end (Algorithm 1 sends a whole path; the planner
@@ -706,11 +708,14 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   # 8 robots on lab); under vmap a chunk runs it if any of its robots needs it (a batched
   # lax.cond would run it for every chunk). The results are those of one two-channel pass.
   gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
-  gaining = lambda gain: candidates & (gain > 1e-6)  # the candidates an exploring plan weighs
+  # A path's gain is what its road-mark points add to the region of P_0, where the robot stands
+  # (see the comment before the scores below): its Eq 20 sum less the root's.
+  added = lambda gain: gain - gain[root]
+  gaining = lambda new: candidates & (new > 1e-6)  # the candidates an exploring plan weighs
 
   def more_passes(carry):
     k, sums = carry
-    return (k == 0) | ((k == 1) & ~jnp.any(gaining(sums[0])))
+    return (k == 0) | ((k == 1) & ~jnp.any(gaining(added(sums[0]))))
 
   def one_pass(carry):
     k, sums = carry
@@ -720,8 +725,15 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   _, (gain, reexplore) = jax.lax.while_loop(
       more_passes, one_pass, (jnp.int32(0), jnp.zeros((2, h * w), jnp.float32)))
 
-  # Eq 20 sums over every road-mark point of a path, its first (where the robot stands)
-  # included: a path gains when the robot's own region still has entropy to lose.
+  # Eq 20 sums over the road-mark points p_1 ... p_m of a path; the robot stands at P_0 (Li's
+  # Figure 5), and the scan it took there is in the maps already (Algorithm 1, line 2). So the
+  # gain of a path is what the regions of its road-mark points add to P_0's region: entropy that
+  # is left in the robot's own region (what no scan from there removed, e.g. cells a sight chain
+  # reaches round a wall corner that a beam does not) is no path's gain. Counting it made every
+  # path gain (the Eq 22 fallback never came: robots shuttled between two cells), and under
+  # select=1 it made the shortest paths the most efficient (a one-cell path scored the root's
+  # gain over 0.1 m). The denominator is the metres the robot drives along the path.
+  gain = added(gain)
   length = geometry[:, 0]
   score = jnp.where(weights["select"] > 0.5, gain / jnp.maximum(length, config.res), gain)
   score = jnp.where(gaining(gain), score, -jnp.inf)

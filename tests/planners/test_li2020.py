@@ -278,9 +278,11 @@ def test_both_readings_of_eq21_match_their_formulas(eq21):
   assert (gain > 0).any() and (gain == 0).any()
 
 
-def test_a_path_gains_what_the_robot_would_still_see_where_it_stands():
-  """Eq 20 counts the first road-mark point's region: entropy left only where the robot stands is
-  a gain (it used to be subtracted from every path, sending the robot to the Eq 22 fallback)."""
+def test_entropy_left_only_where_the_robot_stands_is_no_paths_gain():
+  """Eq 20 sums over a path's road-mark points p_1 ... p_m, not over P_0 where the robot stands
+  (its scan is in the maps already, Algorithm 1 line 2): entropy left only in the robot's own
+  region is no path's gain. With nothing unknown left and Σ within its limit there is no Eq 22
+  fallback either (Algorithm 1: no path means all is explored), so no plan."""
   params = params_for()
   state, l, _ = belief(8)
   l[:, 26:] = -3.0  # no unknown cells, no frontier
@@ -288,11 +290,93 @@ def test_a_path_gains_what_the_robot_would_still_see_where_it_stands():
   entropy = np.full((H, W), 0.01, np.float32)
   entropy[5, 15] = math.log(2)  # only the robot's own cell has entropy to lose
   view = make_view(l, entropy, params)
-  plan, _ = PLAN(CONFIG, view, robot_at((5, 15)), params, jax.random.PRNGKey(0), li2020.init_memory(CONFIG, params))
+  plan, _ = PLAN(CONFIG, view, robot_at((5, 15)), params, jax.random.PRNGKey(0),
+                 li2020.init_memory(CONFIG, params))
   gain = np.asarray(li2020.cell_gains(view, params, jnp.float32(math.log(2)), 3.0))[0]
   assert gain[5, 15] > 0 and gain.sum() == gain[5, 15]
-  assert bool(plan.valid) and int(plan.length) >= 2
-  np.testing.assert_allclose(float(plan.gain), gain[5, 15], rtol=1e-5)  # an exploring plan
+  assert not bool(plan.valid) and int(plan.length) == 0
+
+
+def open_room(robot_cell, entropy_left):
+  """A known room (walls round it) with unknown space beyond column 26, entropy 0.3 in the known
+  cells (no gain: below H_obs), ln 2 in the unknown ones and in the robot's own disc of radius
+  ``entropy_left`` (entropy that no scan from there has removed), 0.65 in the last known columns
+  (cells seen once: the entropy boundary B_e next to the unknown space)."""
+  l = np.full((H, W), -3.0, np.float32)
+  l[:, 26:] = 0.0
+  l[0, :] = l[-1, :] = l[:, 0] = l[:, -1] = 3.0
+  entropy = np.where(l == 0.0, math.log(2), 0.3).astype(np.float32)
+  entropy[1:-1, 23:26] = 0.65
+  ii, jj = np.mgrid[0:H, 0:W]
+  entropy[(ii - robot_cell[0]) ** 2 + (jj - robot_cell[1]) ** 2 <= entropy_left ** 2] = math.log(2)
+  return l, entropy
+
+
+def numpy_union_gain(gain, cells, radius):
+  """Σ gain over the union of the discs of radius ``radius`` round ``cells`` (Eq 20, each cell
+  once), in NumPy."""
+  ii, jj = np.mgrid[0:gain.shape[0], 0:gain.shape[1]]
+  covered = np.zeros(gain.shape, bool)
+  for r, c in cells:
+    covered |= (ii - r) ** 2 + (jj - c) ** 2 <= radius * radius
+  return float(gain[covered].sum())
+
+
+def test_gain_per_metre_weighs_what_a_path_adds_to_the_robots_own_region():
+  """select=1 on a hand-made room: the robot stands in a disc of entropy that no scan from there
+  removed, and 2 m away unknown space waits. Counting the robot's own region in every path (as
+  Eq 20 at P_0) scored a one-cell step its disc's gain over 0.1 m, and the robot shuffled from
+  cell to cell for ever (lab, select=1: coverage flat at 0.66 for 600 s). A path's gain is what
+  the regions of its road-mark points p_1 ... p_m add to the robot's own (P_0, Li's Figure 5,
+  whose scan is in the maps): no one-cell step adds anything here, the far path does."""
+  params = params_for(select=1.0)
+  robot = robot_at((12, 5), theta=0.0)
+  l, entropy = open_room((12, 5), 3.0)
+  view = make_view(l, entropy, params)
+  gain = np.asarray(li2020.cell_gains(view, params, jnp.float32(math.log(2)), 3.0))[0]
+  own = numpy_union_gain(gain, [(12, 5)], 3.0)
+  assert own > 1.0  # a one-cell path used to score more than 10 nats per metre
+  for step in mapping.NEIGHBOURS_8:  # what each one-cell path adds: nothing
+    assert numpy_union_gain(gain, [(12, 5), (12 + step[0], 5 + step[1])], 3.0) == own
+  plan, _ = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0),
+                 li2020.init_memory(CONFIG, params))
+  n = int(plan.length)
+  cells = np.asarray(plan.waypoints)[:n]
+  assert bool(plan.valid) and n >= 15 and cells[-1][1] >= 20  # toward the unknown space
+  added = numpy_union_gain(gain, cells, 3.0) - own  # the plan's gain, read plainly
+  assert added > 0.5
+  np.testing.assert_allclose(float(plan.gain), added, rtol=1e-4)
+
+
+def test_entropy_left_only_where_the_robot_stands_leads_to_the_reexplore_fallback():
+  """Algorithm 1, lines 19-21, on a hand-made room: every candidate path is cut (Eq 18-19) about
+  a metre out, short of the unknown space, and the only entropy the cut paths reach is the
+  robot's own disc. No corrected path adds anything to what the robot observes where it stands,
+  so the plan is Eq 22's: the uncut path of the largest re-explore metric, which counts only a
+  well-mapped patch at the bottom of the room (h0 below every other cell's entropy). Counting
+  the robot's own region in every path made each cut path 'gain' (intel: a robot shuttled
+  between two cells for 2,000 steps, its disc holding unknown cells no beam reaches)."""
+  det_max = 1.2  # Σ_0 = I: det Σ reaches it after about a metre (Eq 17, det ≈ (1 + 0.1 d)² · 1)
+  params = params_for(det_sigma_max=det_max, h0=0.1)
+  robot = robot_at((8, 5), theta=0.0, cov=1.0)
+  # Entropy within 2 cells of the robot: a path that turns back into its R_e disc (3 cells) after
+  # leaving it would count the rim again (path_gains' one caveat), not these cells.
+  l, entropy = open_room((8, 5), 2.0)
+  entropy[20:24, 10:16] = 0.0  # the well-mapped patch, the only cells below h0
+  view = make_view(l, entropy, params)
+  plan, _ = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0),
+                 li2020.init_memory(CONFIG, params))
+  n = int(plan.length)
+  cells = np.asarray(plan.waypoints)[:n]
+  assert bool(plan.valid) and n >= 10
+  # the goal's R_e disc reaches the patch; the path leaves the covariance limit (no cut)
+  patch = np.argwhere(entropy == 0.0)
+  assert (np.hypot(*(patch - cells[-1]).T) <= 3.0).any()
+  covs = numpy_cov_along(cells, 0.0, np.asarray(robot.cov), CONFIG.res, 1.0, 1.0,
+                         li2020.road_mark_cells(CONFIG))
+  assert np.linalg.det(covs[-1]) > det_max
+  reexplore = np.asarray(li2020.cell_gains(view, params, jnp.float32(0.1), 3.0))[1]
+  np.testing.assert_allclose(float(plan.gain), numpy_union_gain(reexplore, cells, 3.0), rtol=1e-4)
 
 
 def test_the_progress_timeout_ends_a_robot_that_drives_without_mapping_anything():
