@@ -312,6 +312,12 @@ class Params:
   coverage_goal: Any = setting(0.99, "fraction of the reachable free area that completes an "
                                "episode (above 1: only the planner or the budget ends it)",
                                owner="episode", gt=0)
+  # As explore_lite's progress_timeout: a robot circling between goals gives its goal up.
+  stall_m: Any = setting(15.0, "a robot that drives this far within stall_span, its map gaining "
+                         "no free cell, has its current goal blacklisted (0: never)",
+                         owner="planning", unit="m", ge=0)
+  stall_span: Any = setting(3.0, "the diagonal of the box of positions a stalled robot stays in",
+                            owner="planning", unit="m", gt=0)
   planner: Any = dataclasses.field(default_factory=dict)  # planner weights (name -> scalar)
 
 

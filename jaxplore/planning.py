@@ -21,6 +21,7 @@ import functools
 import chex
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplore import mapping, pytrees
 from jaxplore.config import Params, SimConfig, window_margin
@@ -126,6 +127,16 @@ def _propose(config: SimConfig, params: Params, state: State, robot, origin, key
   return planning_window.to_grid(result, origin), memory, certified
 
 
+# explore_lite (m-explore, ``explore.cpp``'s ``goalOnBlacklist``) takes a goal within 5 cells
+# of a blacklisted one, along both axes, for the blacklisted goal itself: its neighbouring
+# frontier cells would otherwise be chosen next, one after another.
+STALL_BLACKLIST_CELLS = 5
+_STALL_BOX = np.stack(np.meshgrid(
+    np.arange(-STALL_BLACKLIST_CELLS, STALL_BLACKLIST_CELLS + 1),
+    np.arange(-STALL_BLACKLIST_CELLS, STALL_BLACKLIST_CELLS + 1), indexing="ij"),
+    axis=-1).reshape(-1, 2).astype(np.int32)
+
+
 @pytrees.dataclass(frozen=True)
 class PlanOutcome:
   """What one planning round changes in one robot's state.
@@ -133,8 +144,9 @@ class PlanOutcome:
   Attributes:
     state: the robot's state with its new plan; its map leaves are not meaningful (a round
       reads the maps of a region of the grid and writes nothing but ``marks`` to them).
-    marks: i32[2, 2] goal cells to blacklist (the goal the robot arrived at, a stuck goal).
-    mark: bool[2] which of ``marks`` apply.
+    marks: i32[2 + S, 2] goal cells to blacklist (the goal the robot arrived at, a stuck goal,
+      the S cells around the goal of a stalled robot).
+    mark: bool[2 + S] which of ``marks`` apply.
     certified: bool; False when a window could not certify its plan: then nothing changes.
   """
 
@@ -152,7 +164,10 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
   for a ``windowed`` planner, a window at ``origin`` (:func:`crop_maps`). A robot whose planner
   finds no candidate ends ``exhausted`` (unless already complete). A goal chosen twice in a row
   while the robot already stands on it cannot be resolved from here and is blacklisted, so no
-  robot waits on it forever.
+  robot waits on it forever; so are the cells around the goal of a robot that has stalled
+  (driven ``stall_m`` without leaving ``stall_span`` or gaining a free cell:
+  :func:`jaxplore.robot._watch_stall`), as explore_lite blacklists a goal with a tolerance of
+  :data:`STALL_BLACKLIST_CELLS` cells.
   """
   spec = config.planner
   key, k_plan = jax.random.split(state.key)
@@ -164,6 +179,14 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
     local_goal = state.goal - origin
     state = state.replace(blacklist=state.blacklist.at[local_goal[0], local_goal[1]].max(
         arrived, mode="drop", wrap_negative_indices=False))
+  stalled = running & (params.stall_m > 0) & (state.stall_m >= params.stall_m) & jnp.all(
+      state.goal >= 0)
+  stall_cells = state.goal[None] + _STALL_BOX
+  local = stall_cells - origin[None]
+  state = state.replace(
+      blacklist=state.blacklist.at[local[:, 0], local[:, 1]].max(
+          stalled, mode="drop", wrap_negative_indices=False),
+      stall_m=jnp.where(stalled, 0.0, state.stall_m))
   robot = robot_view(config, world, state)
   result, memory, certified = _propose(config, params, state, robot, origin, k_plan)
   stuck = running & result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
@@ -180,8 +203,11 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
       done=state.done | exhausted,
       reason=jnp.where(exhausted, EXHAUSTED, state.reason),
       memory=jax.tree.map(lambda new, old: jnp.where(running, new, old), memory, state.memory))
-  return PlanOutcome(state=state, marks=jnp.stack([arrival_goal, result.goal]),
-                     mark=jnp.stack([arrived, stuck]), certified=certified)
+  return PlanOutcome(
+      state=state, marks=jnp.concatenate([jnp.stack([arrival_goal, result.goal]), stall_cells]),
+      mark=jnp.concatenate([jnp.stack([arrived, stuck]),
+                            jnp.broadcast_to(stalled, (len(_STALL_BOX),))]),
+      certified=certified)
 
 
 def _apply_plans(state: State, robots, outcome: PlanOutcome) -> State:

@@ -60,6 +60,9 @@ class State:
     entropy: f32 map entropy Σ Ĥ(c) over the grid (nats). covered: f32 reachable cells known free.
     done: bool; reason: i32 (RUNNING, COMPLETE, EXHAUSTED, TIMEOUT).
     collisions: i32 steps in which the robot's disc would have touched an occupied cell.
+    stall_box: f32[4] (x min, y min, x max, y max) of the estimated positions since the stall
+      watch last restarted; stall_m: f32 metres driven since; stall_covered: f32 ``covered``
+      then (see :func:`_watch_stall`).
     memory: the planner's per-robot memory (a pytree; ``()`` for a planner without one).
     graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`), or None when
       ``SimConfig.graph_nodes`` is 0.
@@ -89,6 +92,9 @@ class State:
   done: chex.Array
   reason: chex.Array
   collisions: chex.Array
+  stall_box: chex.Array
+  stall_m: chex.Array
+  stall_covered: chex.Array
   memory: Any = ()
   graph: Any = None
 
@@ -414,13 +420,32 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       time=jnp.float32(0), distance=jnp.float32(0),
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
       done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
-      memory=config.planner.initial_memory(planner_context(config),
-                                                                      params),
+      stall_box=jnp.concatenate([pose[:2], pose[:2]]), stall_m=jnp.float32(0),
+      stall_covered=jnp.float32(0),
+      memory=config.planner.initial_memory(planner_context(config), params),
       graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops,
                             beams=config.n_beams if config.slam == "scan_matching" else 0)
              if config.graph_nodes else None))
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True), first=True)
   return _check_complete(world, params, state)
+
+
+def _watch_stall(params: Params, state: State, moved_m) -> State:
+  """Counts the metres a robot drives while it stays within ``stall_span`` (the diagonal of
+  the box of its estimated positions) and its belief gains no free cell: a robot that drives
+  ``stall_m`` so is going round in circles (two goals chosen in turn, each step toward one
+  making the other look nearer), and its next planning round blacklists its current goal
+  (:func:`jaxplore.planning._plan_round`). Leaving the span or a new free cell restarts the
+  watch. explore_lite's ``progress_timeout`` plays this part on real robots."""
+  xy = state.pose_est[:2]
+  box = jnp.concatenate([jnp.minimum(state.stall_box[:2], xy),
+                         jnp.maximum(state.stall_box[2:], xy)])
+  span = box[2:] - box[:2]
+  restart = (jnp.sqrt(jnp.sum(span * span)) > params.stall_span) | (
+      state.covered > state.stall_covered)
+  return state.replace(stall_box=jnp.where(restart, jnp.concatenate([xy, xy]), box),
+                       stall_m=jnp.where(restart, 0.0, state.stall_m + moved_m),
+                       stall_covered=jnp.where(restart, state.covered, state.stall_covered))
 
 
 def _check_complete(world: World, params: Params, state: State) -> State:
@@ -704,6 +729,7 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   # The measured increment, its covariance and the estimate it moved (the SLAM model's input).
   state = _sense(config, world, params, state, k_sense, busy,
                  odometry=(odo, odometry_cov, estimate_before))
+  state = _watch_stall(params, state, delta_d)
   if config.graph_nodes and config.slam == "oracle":
     # Keyframes at the estimate after relocalisation; odometry edges with the covariance of the
     # simulated odometry error (Eq 16's form, not Li's planning scale); line of sight in the updated

@@ -192,3 +192,61 @@ def test_lockstep_plans_in_a_smaller_chunk_when_it_holds_every_robot_that_needs_
     chex.assert_trees_all_equal(after, fixed(before))
     planned = np.any(np.asarray(after.goal) != np.asarray(before.goal), axis=-1)
     np.testing.assert_array_equal(planned, needs)
+
+
+def _notch_room():
+  """The room of the notch test: its belief, and the state of a robot in it."""
+  grid = box_world(30, 30, res=0.1)
+  params = make_params(res=0.1, r_robot=0.2, r_max=0.5)
+  config = config_for(grid.shape, grid.res, params, max_steps=4, planner="nearest_frontier")
+  world = sim.make_world(grid, 0.2, (1.45, 2.0))
+  logodds = np.full(grid.shape, FREE)
+  logodds[grid.occupied] = OCCUPIED
+  logodds[:10, :] = OCCUPIED
+  logodds[26:29, 26:29] = UNKNOWN  # the room's far corner
+  logodds[12:14, 26:29] = UNKNOWN  # and a nearer patch, 13 rows from it
+  return config, world, params, belief_state(config, world, params, logodds, (1.35, 1.15))
+
+
+def test_the_stall_watch_counts_metres_only_while_a_robot_circles_without_gaining_cells():
+  from jaxplore.robot import _watch_stall
+  _, _, params, state = _notch_room()
+  state = state.replace(stall_box=jnp.asarray([1.0, 1.0, 1.0, 1.0]), stall_m=jnp.float32(0),
+                        stall_covered=state.covered)
+  loop = [(1.0, 2.0), (2.0, 2.0), (2.0, 1.0), (1.0, 1.0)] * 3  # a 1 m square, 12 m
+  for x, y in loop:
+    state = _watch_stall(params, state.replace(pose_est=jnp.asarray([x, y, 0.0])), 1.0)
+  assert float(state.stall_m) == 12.0
+  np.testing.assert_allclose(np.asarray(state.stall_box), [1.0, 1.0, 2.0, 2.0])
+  gained = _watch_stall(params, state.replace(covered=state.covered + 1), 1.0)
+  assert float(gained.stall_m) == 0.0 and float(gained.stall_covered) == float(state.covered) + 1
+  # leaving the 3 m span (the box's diagonal) restarts the watch where the robot is
+  away = _watch_stall(params, state.replace(pose_est=jnp.asarray([3.2, 3.2, 0.0])), 1.0)
+  assert float(away.stall_m) == 0.0
+  np.testing.assert_allclose(np.asarray(away.stall_box), [3.2, 3.2, 3.2, 3.2], rtol=1e-6)
+  inside = _watch_stall(params, state.replace(pose_est=jnp.asarray([3.0, 3.0, 0.0])), 1.0)
+  assert float(inside.stall_m) == 13.0  # diagonal 2.83 m: still circling
+
+
+def test_a_stalled_robot_gives_its_goal_up():
+  """At ``stall_m`` metres circling, the next planning round blacklists the robot's current
+  goal and the cells within 5 of it (explore_lite's tolerance) and plans elsewhere; a metre
+  short of it, the same goal is planned again."""
+  config, world, params, state = _notch_room()
+  plan = jax.jit(lambda s: sim.plan(config, world, params, s))
+  first = plan(state)
+  goal = tuple(np.asarray(first.goal))
+  assert goal[0] <= 14 and not bool(first.blacklist[goal])  # the nearer patch
+  for metres, stalled in ((params.stall_m - 1.0, False), (params.stall_m, True)):
+    again = plan(first.replace(stall_m=jnp.float32(metres)))
+    rows, cols = np.nonzero(np.asarray(again.blacklist))
+    if stalled:
+      near = (np.abs(np.arange(30)[:, None] - goal[0]) <= 5) & (
+          np.abs(np.arange(30)[None, :] - goal[1]) <= 5)
+      np.testing.assert_array_equal(np.asarray(again.blacklist), near)
+    else:
+      assert len(rows) == 0
+    assert (tuple(np.asarray(again.goal)) != goal) == stalled
+    assert float(again.stall_m) == (0.0 if stalled else metres)
+    if stalled:  # the far corner's frontier, outside the box
+      assert not near[tuple(np.asarray(again.goal))] and np.asarray(again.goal)[0] >= 25
