@@ -193,7 +193,8 @@ class RunSpec:
     preset: sensor/robot preset (``jaxplore.config.PRESETS``), or None for the bare defaults.
     res: resample a loaded world to this resolution (m/cell; coarser only).
     start: (x, y, θ) start pose of every robot, or None to sample one per robot.
-    max_steps: step budget per robot; None: from the world's free area and the robot's speed.
+    max_steps: step budget per robot; None: from the world's free area, its walls' length and
+      the robot's speed (:func:`jaxplore.resolve.default_max_steps`).
     replan_every: steps between planning rounds of a robot following a path; None: the preset's.
     path_capacity: waypoints a path may hold; None: the engine's default.
     plan_window: side in cells of the window a ``windowed`` planner plans on first (0: the whole
@@ -231,8 +232,8 @@ class RunSpec:
                               unset="the map's own")
   start: tuple[float, float, float] | None = None
   max_steps: int | None = setting(None, "step budget per robot", owner="run", static=True, ge=1,
-                                  integer=True, unset="from the world's free area and the "
-                                  "robot's speed")
+                                  integer=True, unset="from the world's free area, its walls' "
+                                  "length and the robot's speed")
   replan_every: int | None = setting(None, "motion steps between planning rounds of a robot "
                                      "on its path", owner="run", static=True, ge=1, integer=True,
                                      unset="the preset's")

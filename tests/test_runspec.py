@@ -216,3 +216,22 @@ def test_a_planner_brings_its_papers_preset_unless_one_is_named():
   from jaxplore.sweeps import _planners_preset
   assert _planners_preset(["ereg", "reg"]) == "toriz" and _planners_preset("srg") == "toriz"
   assert _planners_preset(["ereg", "li2020"]) is None and _planners_preset(None) is None
+
+
+def test_the_default_budget_follows_the_walls_of_a_cluttered_map():
+  """The default step budget: the longer of three sweeps of the free area and 1.5 times the
+  wall faces' length (counted here cell by cell), over the step length, plus 1000."""
+  from conftest import box_world
+  from jaxplore.config import make_params
+  from jaxplore.resolve import default_max_steps
+  pillars = tuple((r, r + 1, c, c + 1) for r in range(3, 37, 3) for c in range(3, 57, 3))
+  params = make_params("li2020", res=0.1)
+  step_m = float(params.v_max) * float(params.dt)
+  for grid in (box_world(40, 60), box_world(40, 60, walls=pillars)):
+    occupied = grid.occupied
+    faces = sum(occupied[i, j] != occupied[i + di, j + dj]
+                for i in range(40) for j in range(60) for di, dj in ((1, 0), (0, 1))
+                if i + di < 40 and j + dj < 60) * grid.res
+    area = 3.0 * grid.free_area / 6.0
+    assert default_max_steps(grid, params) == int(max(area, 1.5 * faces) / step_m) + 1000
+  assert 1.5 * faces > area  # the pillars' walls set the cluttered room's budget
