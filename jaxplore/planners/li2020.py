@@ -44,7 +44,12 @@ Not Li's: a progress timeout (as explore_lite's ``progress_timeout``). A robot t
 ``progress_m`` metres (straight lines between its plans) without one more cell of its belief
 becoming known ends its episode as exhausted, with ``stuck`` set in its memory. Without it a
 robot can drive back and forth for ever between two places whose regions still hold entropy
-that no scan can remove (unknown cells behind a wall within ``R_e`` of a waypoint).
+that no scan can remove (unknown cells behind a wall within ``R_e`` of a waypoint, with the
+``disc`` region; cells a sight chain of the ``visible`` region reaches round a wall corner).
+With the ``beams`` region and a path's gain taken beyond the robot's own region, what it still
+ends is mostly the Eq 22 fallback's trips: where Eq 18–19 cut every candidate short of the
+unexplored space (``det_sigma_max``), the robot drives to the best re-explore path's end, in
+mapped space by design, and back (docs/papers/li2020.md).
 
 Cells counted in the gain: known cells, and unknown cells within ``R_e`` of a free cell through
 unknown cells (:func:`observable_cells`). Unknown cells inside walls or outside the building can
@@ -124,20 +129,22 @@ class Settings:
       heading change ``δφ`` is taken (the direction between consecutive road-mark points), m.
       Per grid cell (0) a staircase path that approximates a straight line turns by 45° at
       every other cell and its Σ explodes while a grid-aligned path's does not.
-    region: ``Region(p_i)`` of Eq 20 and 22. ``"visible"`` (default): the cells within ``R_e``
+    region: ``Region(p_i)`` of Eq 20 and 22. ``"beams"`` (default): the cells within ``R_e``
       of ``p_i`` that a scan from ``p_i`` could see, no cell the belief holds occupied on the
-      sight line (:func:`visible_gains`); a cell is counted where it enters a waypoint's region
-      if seen from there, or where it leaves one if seen from there, whichever of the two path
-      sums is larger (each is at most the exact union; a cell seen only while the path passes
-      by, inside every region on the way, is missed). Its sight lines are chains of a tree
-      (:func:`ray_tree`), which stray up to 1.5 cells from their segments and see round wall
-      corners that every beam hits. ``"beams"``: the same, each cell seen along a beam, the
-      exact traversal of a straight line (:func:`beam_gains`). ``"disc"``: the whole disc,
+      beam to it (:func:`beam_gains`: the exact traversal of a straight line, as the lidar's
+      beams cross the grid); a cell is counted where it enters a waypoint's region if seen from
+      there, or where it leaves one if seen from there, whichever of the two path sums is
+      larger (each is at most the exact union; a cell seen only while the path passes by,
+      inside every region on the way, is missed). ``"visible"``: the same along the chains of
+      a tree of sight lines (:func:`visible_gains`, the default before the beams), which stray
+      up to 1.5 cells from their segments and see round wall corners that every beam hits:
+      the unknown cells behind such a corner hold gain that no scan from there removes, and
+      robots drove back and forth for it (intel, willow). ``"disc"``: the whole disc,
       walls ignored; unknown cells behind a known wall then hold gain that no scan can remove,
       and robots drive back and forth between two places that both count them. ``"disc"``
       costs one shifted sum per crescent offset (about 20 R_e), ``"visible"`` about three per
-      disc offset (π R_e²), ``"beams"`` 1.2–1.5 times ``"visible"`` (a 140 x 139 grid, R_e 57
-      cells, CPU).
+      disc offset (π R_e²), ``"beams"`` about 1.5 times ``"visible"`` (2.6 beam steps per disc
+      offset; a whole plan up to 2 times: lab and intel, R_e 57 cells, CPU).
   """
 
   eq21: str = setting("sensor", "Eq 21's reading of H'(c), the entropy of a cell once observed: "
@@ -145,10 +152,10 @@ class Settings:
                       choices=("sensor", "cell"))
   road_mark_m: float = setting(0.5, "spacing of the road-mark points of Eq 16 along a path",
                                unit="m", static=True, ge=0)
-  region: str = setting("visible", "Region(p_i) of Eq 20 and 22: the cells within R_e a scan "
-                        "could see, along a tree of sight lines (visible) or along beams "
-                        "(beams), or the whole disc", static=True,
-                        choices=("visible", "beams", "disc"))
+  region: str = setting("beams", "Region(p_i) of Eq 20 and 22: the cells within R_e a scan "
+                        "could see, along beams (beams) or along a tree of sight lines "
+                        "(visible), or the whole disc", static=True,
+                        choices=("beams", "visible", "disc"))
 
 
 def init_memory(ctx, params):

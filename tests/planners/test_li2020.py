@@ -597,17 +597,18 @@ def test_visible_gains_in_blocks_are_the_sums_one_offset_at_a_time_bit_for_bit(b
     li2020.visible_gains(*args, 0)
 
 
-def test_the_planner_takes_the_visible_gain_blocks_of_the_engines_strategy(monkeypatch):
-  """Traced only: li2020 asks visible_gains for VISIBLE_BLOCK[strategy]."""
+@pytest.mark.parametrize("region, sums", [("beams", "beam_gains"), ("visible", "visible_gains")])
+def test_the_planner_takes_the_visible_gain_blocks_of_the_engines_strategy(monkeypatch, region,
+                                                                          sums):
+  """Traced only: li2020 asks the region's sums for VISIBLE_BLOCK[strategy]."""
   blocks = []
-  visible = li2020.visible_gains
-  monkeypatch.setattr(li2020, "visible_gains",
-                      lambda *args: blocks.append(args[3]) or visible(*args))
+  seen_sums = getattr(li2020, sums)
+  monkeypatch.setattr(li2020, sums, lambda *args: blocks.append(args[3]) or seen_sums(*args))
   params = params_for()
   state, l, entropy = belief(5)
   view = make_view(l, entropy, params)
   for strategy in ("per_robot", "lockstep"):
-    ctx = dataclasses.replace(CONFIG, strategy=strategy)
+    ctx = dataclasses.replace(CONFIG, strategy=strategy, settings=li2020.Settings(region=region))
     jax.eval_shape(lambda: li2020.plan_li2020(ctx, view, robot_at((5, 15)), params,
                                               jax.random.PRNGKey(0), li2020.init_memory(ctx, params)))
   assert blocks == [li2020.VISIBLE_BLOCK["per_robot"], li2020.VISIBLE_BLOCK["lockstep"]]
