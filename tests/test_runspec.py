@@ -196,7 +196,7 @@ def test_a_planners_text_setting_is_reachable_from_flags_toml_and_the_api(tmp_pa
   settings = settings.settings
   assert (settings.region, settings.eq21) == ("disc", "cell")
   for planner_params, match in [({"k1": "abc"}, "weight k1 must be a number, got 'abc'"),
-                                ({"region": "wall"}, "region must be one of visible, disc"),
+                                ({"region": "wall"}, "region must be one of beams, visible, disc"),
                                 ({"road_mark_m": "far"}, "setting road_mark_m must be a float")]:
     with pytest.raises(ConfigError, match=match):
       resolve(RunSpec(world="lab", planner="li2020", robots=1, max_steps=5,

@@ -467,8 +467,8 @@ def test_a_word_valued_setting_is_a_grid_axis(reference, tmp_path, monkeypatch):
   """li2020's ``region`` swept by its words: a group (a compiled program) per word, the words in
   the table and in each group's resolved settings, and an interrupted sweep resumes from its
   schedule (words kept through its JSON) to the uninterrupted table. (Groups of 3 rows: the
-  ``visible`` group is the reference's program, only ``disc`` compiles.)"""
-  grid = {"region": ["visible", "disc"]}
+  ``beams`` group is the reference's program, only ``disc`` compiles.)"""
+  grid = {"region": ["beams", "disc"]}
   out = tmp_path / "cut"
   real = _interrupt_second_chunk(monkeypatch)
   with pytest.raises(KeyboardInterrupt, match="--resume"):
@@ -478,9 +478,9 @@ def test_a_word_valued_setting_is_a_grid_axis(reference, tmp_path, monkeypatch):
   assert resumed.timing["chunks_skipped"] == 1 and resumed.timing["chunks_run"] == 1
 
   episodes = pd.read_parquet(out / "episodes.parquet")
-  assert list(episodes.region) == ["visible"] * 3 + ["disc"] * 3
+  assert list(episodes.region) == ["beams"] * 3 + ["disc"] * 3
   groups = json.loads((out / "config.json").read_text())["groups"]
-  assert [g["sim_config"]["planner_settings"]["region"] for g in groups] == ["visible", "disc"]
+  assert [g["sim_config"]["planner_settings"]["region"] for g in groups] == ["beams", "disc"]
   whole = jaxplore.sweep(grid, seeds=3, out=tmp_path / "whole", chunk_size=3, **SETTINGS)
   pd.testing.assert_frame_equal(episodes, whole.episodes)
 
@@ -494,7 +494,7 @@ def test_grid_words_are_refused_where_a_number_is_meant():
     jaxplore.sweep({"region": ["disc", 1.0]}, seeds=1, **SETTINGS)
   with pytest.raises(ConfigError, match="repeats a value"):
     jaxplore.sweep({"region": ["disc", "disc"]}, seeds=1, **SETTINGS)
-  with pytest.raises(ConfigError, match="region must be one of visible, disc, got 'cube'"):
+  with pytest.raises(ConfigError, match="region must be one of beams, visible, disc, got 'cube'"):
     jaxplore.sweep({"region": ["disc", "cube"]}, seeds=1, **SETTINGS)
   assert settings.normalise_grid({"region": "disc"}) == {"region": ("disc",)}
 

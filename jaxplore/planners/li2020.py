@@ -143,8 +143,9 @@ class Settings:
       walls ignored; unknown cells behind a known wall then hold gain that no scan can remove,
       and robots drive back and forth between two places that both count them. ``"disc"``
       costs one shifted sum per crescent offset (about 20 R_e), ``"visible"`` about three per
-      disc offset (π R_e²), ``"beams"`` about 1.5 times ``"visible"`` (2.6 beam steps per disc
-      offset; a whole plan up to 2 times: lab and intel, R_e 57 cells, CPU).
+      disc offset (π R_e²), ``"beams"`` about as much as ``"visible"`` on a CPU (2.6 beam steps
+      per disc offset, :data:`BEAM_GROUP` beams a loop step: 0.07-0.08 s each for one robot's
+      sums on lab and intel, R_e 57 cells; not measured on a GPU).
   """
 
   eq21: str = setting("sensor", "Eq 21's reading of H'(c), the entropy of a cell once observed: "
@@ -535,22 +536,29 @@ def beam_cells(angle: float, radius: float) -> list[tuple[int, int]]:
   return cells[:last_inside]
 
 
-@functools.cache
-def beam_table(radius: float, block: int = 1):
-  """The beams of :func:`beam_gains`, ``block`` to a group: beams from the centre of a cell at
-  evenly spaced angles, as many as it takes for every disc offset to be crossed by one (about
-  ``2π R_e``: neighbouring beams are about a cell apart at ``R_e``, as Eq 5–6 space the lidar's).
-  Each disc offset is owned by one beam that crosses it, the one whose direction is nearest the
-  offset's centre: it is seen from a cell when that beam meets no occupied cell before it.
+# Beams walked together by beam_gains (its masks' buffer): fixed, so that the sums do not depend
+# on the execution strategy's block.
+BEAM_GROUP = 8
 
-  Returns (offsets i32[G, L, block, 2]: the cell each beam of group g crosses at its step k
-  ((0, 0) past its end); lengths i32[G]: the steps of the group's longest beam; owned
-  i32[G, L, block]: the beams of the group that own their step's cell, first ``own_counts``
-  i32[G, L] of them; rim i32[G, L, K, 2]: (beam, n) for an owned cell in
-  ``crescents(radius)[n]``, n indexing ``mapping.NEIGHBOURS_8``, first ``rim_counts`` i32[G, L]).
+
+@functools.cache
+def beam_table(radius: float):
+  """The beams of :func:`beam_gains`, :data:`BEAM_GROUP` to a group: beams from the centre of a
+  cell at evenly spaced angles, as many as it takes for every disc offset to be crossed by one
+  (about ``2π R_e``: neighbouring beams are about a cell apart at ``R_e``, as Eq 5–6 space the
+  lidar's). Each disc offset is owned by one beam that crosses it, the one whose direction is
+  nearest the offset's centre: it is seen from a cell when that beam meets no occupied cell
+  before it.
+
+  Returns (offsets i32[G, L, BEAM_GROUP, 2]: the cell each beam of group g crosses at its step
+  s ((0, 0) past its end); lengths i32[G]: the steps of the group's longest beam; owned
+  i32[G, L, BEAM_GROUP]: the beams of the group that own their step's cell, first
+  ``own_counts`` i32[G, L] of them; rim i32[G, L, K, 2]: (beam, n) for an owned cell in
+  ``crescents(radius)[n]``, n indexing ``mapping.NEIGHBOURS_8``, first ``rim_counts``
+  i32[G, L]). Rows past a count are zero.
   """
   disc = [o for o in disc_offsets(radius) if o != (0, 0)]
-  n_beams = block * -(-(int(math.ceil(2 * math.pi * radius)) + 8) // block)
+  n_beams = BEAM_GROUP * -(-(int(math.ceil(2 * math.pi * radius)) + 8) // BEAM_GROUP)
   while True:
     angles = [2 * math.pi * (k + 0.5) / n_beams for k in range(n_beams)]
     beams = [beam_cells(a, radius) for a in angles]
@@ -562,17 +570,17 @@ def beam_table(radius: float, block: int = 1):
           owner[o] = (off, k)
     if all(o in owner for o in disc):
       break
-    n_beams += block
+    n_beams += BEAM_GROUP
   rim = [set(crescents(radius)[d]) for d in mapping.NEIGHBOURS_8]
-  groups, length = n_beams // block, max(len(cells) for cells in beams)
-  offsets = np.zeros((groups, length, block, 2), np.int32)
+  groups, length = n_beams // BEAM_GROUP, max(len(cells) for cells in beams)
+  offsets = np.zeros((groups, length, BEAM_GROUP, 2), np.int32)
   lengths = np.zeros(groups, np.int32)
-  owned = np.zeros((groups, length, block), np.int32)
+  owned = np.zeros((groups, length, BEAM_GROUP), np.int32)
   own_counts = np.zeros((groups, length), np.int32)
   rims: list[list[list[tuple[int, int]]]] = [[[] for _ in range(length)] for _ in range(groups)]
   in_disc = set(disc)
   for k, cells in enumerate(beams):
-    g, u = divmod(k, block)
+    g, u = divmod(k, BEAM_GROUP)
     lengths[g] = max(lengths[g], len(cells))
     for s, o in enumerate(cells):
       offsets[g, s, u] = o
@@ -597,22 +605,37 @@ def beam_gains(gains, occupied, radius: float, block: int = 1):
   no scan from there removes. Here a beam's cells are those its line crosses: an offset counts
   when no occupied cell lies on its beam before it (an occupied offset is seen).
 
-  The beams are walked ``block`` at a time, step by step: per step a shifted read of the clear
-  cells for each beam, one masked add per owned cell and one per crescent membership (about
-  2.6 steps per disc offset: beams cross more cells than their offsets, and overlap near the
-  centre).
+  The beams are walked :data:`BEAM_GROUP` at a time, step by step: per step a shifted read of
+  the clear cells for each beam, one masked add per owned cell and one per crescent membership
+  (about 2.6 steps per disc offset: beams cross more cells than their offsets, and overlap near
+  the centre). The adds of a step are taken ``block`` at a time, one loop step each block, in
+  the same order whatever ``block`` is, so the result does not depend on it.
 
   Args, returns: as :func:`visible_gains`.
   """
   if block < 1:
     raise ValueError(f"block must be >= 1, got {block}")
+  offsets, lengths, owned, own_counts, rim, rim_counts = beam_table(radius)
+  pad_to = lambda a: np.pad(a, [(0, 0), (0, 0), (0, -a.shape[2] % block)] + [(0, 0)] * (a.ndim - 3))
   offsets, lengths, owned, own_counts, rim, rim_counts = (
-      jnp.asarray(a) for a in beam_table(radius, block))
+      jnp.asarray(a) for a in (offsets, lengths, pad_to(owned), own_counts, pad_to(rim),
+                               rim_counts))
   c, h, w = gains.shape
   pad, framed_gain, clear, _ = sight_fields(gains, occupied, radius)
 
   def window(field, at):
     return jax.lax.dynamic_slice(field, (0, at[0] + pad, at[1] + pad), field.shape[:1] + (h, w))
+
+  def in_blocks(count, body, carry):
+    """``fori_loop(0, count, body, carry)``, ``block`` indices per loop step (the last block's
+    indices past ``count`` are for ``body`` to ignore)."""
+
+    def step(b, carry):
+      for u in range(block):
+        carry = body(b * block + u, carry)
+      return carry
+
+    return jax.lax.fori_loop(0, (count + block - 1) // block, step, carry)
 
   def group(g, carry):
     full, crescent = carry
@@ -623,20 +646,20 @@ def beam_gains(gains, occupied, radius: float, block: int = 1):
 
       def add(j, full):
         u = owned[g, s, j]
-        seen = jax.lax.dynamic_index_in_dim(masks, u, keepdims=False)
+        seen = jax.lax.dynamic_index_in_dim(masks, u, keepdims=False) & (j < own_counts[g, s])
         return full + jnp.where(seen, window(framed_gain, at[u]), 0.0)
 
       def add_rim(j, crescent):
         u, n = rim[g, s, j]
-        seen = jax.lax.dynamic_index_in_dim(masks, u, keepdims=False)
+        seen = jax.lax.dynamic_index_in_dim(masks, u, keepdims=False) & (j < rim_counts[g, s])
         return crescent.at[n].add(jnp.where(seen, window(framed_gain, at[u]), 0.0))
 
-      full = jax.lax.fori_loop(0, own_counts[g, s], add, full)
-      crescent = jax.lax.fori_loop(0, rim_counts[g, s], add_rim, crescent)
-      ahead = jnp.stack([window(clear[None], at[u])[0] for u in range(block)])
+      full = in_blocks(own_counts[g, s], add, full)
+      crescent = in_blocks(rim_counts[g, s], add_rim, crescent)
+      ahead = jnp.stack([window(clear[None], at[u])[0] for u in range(BEAM_GROUP)])
       return masks & ahead, full, crescent
 
-    masks = jnp.ones((block, h, w), bool)
+    masks = jnp.ones((BEAM_GROUP, h, w), bool)
     _, full, crescent = jax.lax.fori_loop(0, lengths[g], step, (masks, full, crescent))
     return full, crescent
 

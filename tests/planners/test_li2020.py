@@ -622,7 +622,7 @@ BEAMS = jax.jit(li2020.beam_gains, static_argnums=(2, 3))
 def test_beams_on_open_ground_count_every_disc_offset_once(radius):
   """With nothing occupied every beam runs free: the sums are the plain disc sums and the crescent
   sums of ``crescents`` (NumPy), and every disc offset is owned by exactly one beam."""
-  offsets, _, owned, own_counts, _, _ = li2020.beam_table(radius, 2)
+  offsets, _, owned, own_counts, _, _ = li2020.beam_table(radius)
   disc = li2020.disc_offsets(radius)
   cells = [tuple(offsets[g, s, owned[g, s, j]]) for (g, s), n in np.ndenumerate(own_counts)
            for j in range(n)]
@@ -637,6 +637,18 @@ def test_beams_on_open_ground_count_every_disc_offset_once(radius):
     np.testing.assert_allclose(np.asarray(crescent[n]),
                                sum(shifted(o) for o in li2020.crescents(radius)[d]), rtol=1e-5,
                                atol=1e-6)
+
+
+@pytest.mark.parametrize("block", [2, 8])
+def test_beam_sums_in_blocks_are_the_sums_one_add_at_a_time_bit_for_bit(block):
+  """The strategies' blocks (VISIBLE_BLOCK) change only how many adds a loop step takes: the
+  planning rounds of both strategies must stay alike bit for bit."""
+  rng = np.random.default_rng(9)
+  gains = jnp.asarray(rng.uniform(0, 1, (2, 20, 24)).astype(np.float32))
+  occupied = jnp.asarray(rng.uniform(0, 1, (20, 24)) < 0.15)
+  one = BEAMS(gains, occupied, 6.0, 1)
+  np.testing.assert_array_equal(np.asarray(BEAMS(gains, occupied, 6.0, block)[0]), np.asarray(one[0]))
+  np.testing.assert_array_equal(np.asarray(BEAMS(gains, occupied, 6.0, block)[1]), np.asarray(one[1]))
 
 
 def straight_line_verdicts(occupied, radius, fractions=(0.02, 0.26, 0.5, 0.74, 0.98), samples=256):
