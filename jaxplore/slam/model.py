@@ -85,22 +85,61 @@ def stored_scan(scan: sensor.Scan):
 
 
 # A measured range ends on a wall's face, and the wall's cell centre lies half a cell further on
-# average: end points are taken that much further along their beams wherever a scan's end is
-# matched or drawn. Karto's 1 cm correlation grid makes the difference negligible; on 5-20 cm
-# grids it is not (a point exactly on a face falls in the free cell in front of it for a beam
-# travelling toward -x or -y, one cell short: a bias of a cell in loop closures).
+# average: a scan's end points are matched that much further into the surface they hit. Karto's
+# 1 cm correlation grid makes the difference negligible; on 5-20 cm grids it is not (a point
+# exactly on a face falls in the free cell in front of it for a beam travelling toward -x or -y,
+# one cell short: a bias of a cell in loop closures).
 END_PUSH_CELLS = 0.5
+# End points nearer than this (cells) are neighbours on one surface (:func:`end_points`,
+# :func:`facing`).
+NEIGHBOUR_CELLS = 3.0
+
+
+def _neighbours(x, y, hit, res: float):
+  """For each end point (f32[n] ``x``, ``y`` in beam order), its next and previous beam's end
+  points and whether each lies on the same surface (a hit within :data:`NEIGHBOUR_CELLS`)."""
+  def neighbour(shift):
+    nx, ny, nh = (jnp.roll(a, shift) for a in (x, y, hit))
+    return nx, ny, nh & (jnp.hypot(nx - x, ny - y) <= NEIGHBOUR_CELLS * res)
+
+  return neighbour(-1), neighbour(1)
+
+
+def end_points(ranges, offsets, res: float):
+  """Every beam's end point in the robot's frame (f32[n, 2] m) moved :data:`END_PUSH_CELLS` into
+  the surface it hit, along that surface's normal, and whether it hit (bool[n]). ``ranges`` as
+  :func:`stored_scan` gives them.
+
+  The normal is the perpendicular of the line through the neighbouring beams' end points (one
+  neighbour: the line to it); a point with neither (a lone return) is moved along its beam.
+  Moved along their beams instead, the points of a beam grazing a wall slid along the wall rather
+  than into it: matched against a map drawn at the true poses from the true pose, a willow robot's
+  keyframes came out 1.9 cm and 0.25 degrees off the truth (median; 4 cm and 0.8 degrees at the
+  90th percentile), 1.3 cm and 0.0 degrees (4.2 cm, 0.2 degrees) along the normals."""
+  r = jnp.abs(ranges.astype(jnp.float32)) * res
+  hit = ranges > 0
+  cos, sin = jnp.cos(offsets), jnp.sin(offsets)
+  x, y = r * cos, r * sin
+  (nx1, ny1, near1), (nx0, ny0, near0) = _neighbours(x, y, hit, res)
+  tx = jnp.where(near1, nx1, x) - jnp.where(near0, nx0, x)
+  ty = jnp.where(near1, ny1, y) - jnp.where(near0, ny0, y)
+  length = jnp.hypot(tx, ty)
+  on_surface = (near1 | near0) & (length > 1e-6)
+  safe = jnp.where(on_surface, length, 1.0)
+  normal_x, normal_y = -ty / safe, tx / safe
+  into = jnp.where(normal_x * cos + normal_y * sin < 0, -1.0, 1.0)  # away from the sensor
+  push_x = jnp.where(on_surface, into * normal_x, cos)
+  push_y = jnp.where(on_surface, into * normal_y, sin)
+  push = jnp.where(hit, END_PUSH_CELLS * res, 0.0)
+  return jnp.stack([x + push * push_x, y + push * push_y], axis=-1), hit
 
 
 def scan_points(ranges, offsets, res: float, stride: int):
-  """Every ``stride``-th beam's end point in the robot's frame (f32[n', 2] m) and whether it
-  ended on an obstacle (bool[n']): the points a scan match scores. ``ranges`` as
+  """Every ``stride``-th beam's end point (:func:`end_points`; f32[n', 2] m, robot frame) and
+  whether it ended on an obstacle (bool[n']): the points a scan match scores. ``ranges`` as
   :func:`stored_scan` gives them."""
-  ranges = ranges[::stride].astype(jnp.float32)
-  offsets = offsets[::stride]
-  hit = ranges > 0
-  r = jnp.abs(ranges) * res + jnp.where(hit, END_PUSH_CELLS * res, 0.0)
-  return jnp.stack([r * jnp.cos(offsets), r * jnp.sin(offsets)], axis=-1), hit
+  points, hit = end_points(ranges, offsets, res)
+  return points[::stride], hit[::stride]
 
 
 def crop(grid, origin, res: float, centre_xy, side: tuple[int, int]):
@@ -207,20 +246,14 @@ class Closure(NamedTuple):
   pose: jax.Array  # f32[3] the matched pose
 
 
-def facing(x, y, hit, origin_xy, view_xy, res: float, neighbour_cells: float = 3.0):
+def facing(x, y, hit, origin_xy, view_xy, res: float):
   """Which of a scan's end points (f32[n] ``x``, ``y`` in beam order, seen from ``origin_xy``)
   lie on a wall face that ``view_xy`` sees from the same side: Karto's ``FindValidPoints``,
   which drops the points of walls whose far side the matched scan is on (a robot in the next
   room would otherwise match its wall's near face to the far face). A point's face runs to its
   neighbouring beam's end point (the next, else the previous), when that lies within
-  ``neighbour_cells``; a point with neither is dropped."""
-  def neighbour(shift):
-    nx, ny, nh = (jnp.roll(a, shift) for a in (x, y, hit))
-    near = nh & (jnp.hypot(nx - x, ny - y) <= neighbour_cells * res)
-    return nx, ny, near
-
-  nx1, ny1, near1 = neighbour(-1)
-  nx0, ny0, near0 = neighbour(1)
+  :data:`NEIGHBOUR_CELLS`; a point with neither is dropped."""
+  (nx1, ny1, near1), (nx0, ny0, near0) = _neighbours(x, y, hit, res)
   nx, ny = jnp.where(near1, nx1, nx0), jnp.where(near1, ny1, ny0)
   dx, dy = nx - x, ny - y
   side = lambda p: dx * (p[1] - y) - dy * (p[0] - x)
@@ -237,15 +270,15 @@ def local_map(graph: PoseGraph, ranges, candidates, ok, offsets, res: float, cen
   corner = origin + res * jnp.stack([cols, rows]).astype(jnp.float32)
 
   def ends(k):
-    scan = ranges[k].astype(jnp.float32)
+    scan = ranges[k]
     pose = graph.poses[k]
-    hit = scan > 0
     angle = pose[2] + offsets
-    r = jnp.abs(scan) * res
-    seen = facing(pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle), hit, pose[:2],
-                  centre_xy, res)
-    r = r + END_PUSH_CELLS * res
-    return pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle), seen
+    r = jnp.abs(scan.astype(jnp.float32)) * res
+    seen = facing(pose[0] + r * jnp.cos(angle), pose[1] + r * jnp.sin(angle), scan > 0,
+                  pose[:2], centre_xy, res)
+    points, _ = end_points(scan, offsets, res)
+    world = motion.rotate(pose[2], points) + pose[None, :2]
+    return world[:, 0], world[:, 1], seen
 
   x, y, hit = jax.vmap(ends)(candidates)
   hit = hit & ok[:, None]
@@ -423,8 +456,8 @@ def rebuild(logodds, robot, graph: PoseGraph, ranges, offsets, origin, res: floa
   return logodds, entropy, covered
 
 
-__all__ = ["END_PUSH_CELLS", "WOODBURY_LOOPS", "Closure", "Sizes", "add_keyframe", "add_loop",
-           "beam_offsets", "close_loop", "crop", "d_optimality_of_information", "facing",
-           "graph_edges", "in_frame", "information", "keyframe_observation", "local_map",
-           "loop_armed", "loop_candidates", "optimise", "rebuild", "register", "scan_points",
-           "sizes", "stored_scan"]
+__all__ = ["END_PUSH_CELLS", "NEIGHBOUR_CELLS", "WOODBURY_LOOPS", "Closure", "Sizes",
+           "add_keyframe", "add_loop", "beam_offsets", "close_loop", "crop",
+           "d_optimality_of_information", "end_points", "facing", "graph_edges", "in_frame",
+           "information", "keyframe_observation", "local_map", "loop_armed", "loop_candidates",
+           "optimise", "rebuild", "register", "scan_points", "sizes", "stored_scan"]
