@@ -214,7 +214,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       # As slam_toolbox builds its grid: only keyframes' scans, each re-traced from the
       # keyframe's estimated pose (what a rebuild after a loop closure re-integrates).
       observed = slam_model.keyframe_observation(pose_est, frame.stored, offsets, world.origin,
-                                                 res, shape, n_cross, active=frame.new | first)
+                                                 res, shape, n_cross, params,
+                                                 active=frame.new | first)
       old_end = jnp.float32(0.0)
     else:
       seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est, est_dirs)
