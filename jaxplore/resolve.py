@@ -22,6 +22,7 @@ import numpy as np
 
 from jaxplore import memory, posegraph, sim
 from jaxplore.config import (
+  PARAM_FIELDS,
   STATIC_SETTINGS,
   ConfigError,
   Params,
@@ -176,7 +177,14 @@ def split_planner_params(planner: str | PlannerSpec, planner_params) -> tuple[di
   one or the other. Per-robot weights become float32 arrays; a static setting takes one value."""
   spec = get_planner(planner)
   planner = spec.name
-  weights, settings = spec.split_overrides(planner_params)
+  try:
+    weights, settings = spec.split_overrides(planner_params)
+  except ConfigError as err:
+    simulator = sorted(set(planner_params or {}) & set(PARAM_FIELDS))
+    if not simulator:
+      raise
+    raise ConfigError(f"{err}. {', '.join(simulator)}: the simulator's, so params (the flags "
+                      f"--set NAME=VALUE or --NAME VALUE)") from None
   for name, value in weights.items():
     if any(isinstance(v, (str, bytes)) for v in (value if isinstance(value, tuple) else (value,))):
       raise ConfigError(f"planner {planner!r}: weight {name} must be a number, got {value!r}")

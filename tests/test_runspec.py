@@ -9,6 +9,7 @@ import pytest
 
 from jaxplore import cli, runner, sweeps
 from jaxplore.config import ConfigError
+from jaxplore.resolve import split_planner_params
 from jaxplore.runspec import (FIELDS, RUN_TOML_KEYS, SHARED, RunSpec, is_static, kind_of,
                               load_run_config, merge_settings)
 from jaxplore.sweeps import schedule, settings
@@ -65,6 +66,8 @@ def test_a_setting_is_named_without_saying_whose_it_is(capsys):
   with pytest.raises(ConfigError, match=r"unknown parameter.*warp'\]; valid: .*; of planner "
                      r"'li2020': det_sigma_max, .*region.* \(jaxplore settings --planner li2020"):
     RunSpec.create(planner="li2020", params={"warp": 1.0})
+  with pytest.raises(ConfigError, match=r"no parameter\(s\) \['r_max'\].*r_max: the simulator's"):
+    split_planner_params("nearest_frontier", {"r_max": 5.0})  # RunSpec(...) does not reroute
   assert cli.main(["settings", "warp"]) == 2
   assert "no setting(s) ['warp']" in capsys.readouterr().err
 

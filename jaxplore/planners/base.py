@@ -28,7 +28,7 @@ import chex
 import jax.numpy as jnp
 
 from jaxplore import pytrees
-from jaxplore.config import PARAM_FIELDS, ConfigError
+from jaxplore.errors import ConfigError
 from jaxplore.graph.dijkstra import STRATEGY_BATCHING, ShortestPaths, shortest_paths
 from jaxplore.settings import Setting, declared
 
@@ -321,12 +321,8 @@ class PlannerSpec:
     traced = {k: v for k, v in overrides.items() if k not in names}
     unknown = set(traced) - set(self.defaults)
     if unknown:
-      simulator = sorted(unknown & set(PARAM_FIELDS))
-      raise ConfigError(
-          f"planner {self.name!r} has no parameter(s) {sorted(unknown)}; it has: "
-          f"{', '.join(sorted(set(self.defaults) | names)) or 'none'}"
-          + (f". {', '.join(simulator)}: the simulator's, so params (the flags --set NAME=VALUE "
-             f"or --NAME VALUE)" if simulator else ""))
+      raise ConfigError(f"planner {self.name!r} has no parameter(s) {sorted(unknown)}; it has: "
+                        f"{', '.join(sorted(set(self.defaults) | names)) or 'none'}")
     return traced, static
 
 
