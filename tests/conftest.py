@@ -29,8 +29,9 @@ def subprocess_env(drop=("XLA_FLAGS",), **extra):
 
 def pytest_collection_modifyitems(items):
   """The order xdist hands modules out in (``--no-loadscope-reorder``): the smoke test of every
-  planner first (one test, ~3 minutes in a process of its own: last, it kept one worker busy
-  while the other idled), then the modules with most tests first, as xdist's own order was."""
+  planner first (two halves, ~80 s each in a process of their own, one to each worker: last, it
+  kept one worker busy while the other idled), then the modules with most tests first, as
+  xdist's own order was."""
   sizes: dict = {}
   for item in items:
     sizes[item.module.__name__] = sizes.get(item.module.__name__, 0) + 1
@@ -58,6 +59,15 @@ def box_world(h=40, w=60, res=0.1, walls=()):
   for r0, r1, c0, c1 in walls:
     occ[r0:r1, c0:c1] = True
   return GridMap(occ, res, (0.0, 0.0), "box")
+
+
+def tiny_office():
+  """Two rooms and a door at 0.2 m (8 x 6 m): the world of the quickstart notebook's tiny run.
+  tests/test_animate.py, test_runner.py and test_interrupts.py run 2 robots on it for 40 steps
+  (replanning every 5, a 3 m lidar): one engine program for them all, compiled by whichever runs
+  first and loaded from the suite's compilation cache by the others."""
+  from jaxplore.maps import generate
+  return generate.office(8.0, 6.0, res=0.2, seed=0, name="tiny_office")
 
 
 @pytest.fixture(scope="session", autouse=True)

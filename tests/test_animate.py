@@ -7,17 +7,17 @@ import shutil
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import tiny_office
 from PIL import Image
 
 import jaxplore
 from jaxplore import animate, cli, sweeps
 from jaxplore.config import ConfigError
-from jaxplore.maps import generate
 
 # Two rooms and a door, so paths bend. The shapes and settings are those of the quickstart
-# notebook's tiny run (tests/test_notebooks.py), so one process compiles the run only once; the
-# seed differs (a traced value).
-WORLD = generate.office(8.0, 6.0, res=0.2, seed=0, name="tiny_office")
+# notebook's tiny run (tests/test_notebooks.py) and of tests/test_runner.py's, so one process
+# compiles the run only once (conftest.tiny_office); the seed differs (a traced value).
+WORLD = tiny_office()
 SETTINGS = dict(robots=2, seed=3, max_steps=40, replan_every=5, params={"r_max": 3.0},
                 progress=False, quiet=True)
 

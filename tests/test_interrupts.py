@@ -12,7 +12,7 @@ import pytest
 
 from jaxplore import driver, interrupts
 from tests.test_driver import chunks, start
-from conftest import REPO, subprocess_env
+from conftest import REPO, subprocess_env, tiny_office
 
 
 
@@ -130,18 +130,24 @@ STUCK_SECOND_CHUNK = textwrap.dedent("""
 
 
 @pytest.mark.parametrize("mode, code, says", [
-    ("watchdog", 3, "chunk 2 (from step 8) is stuck: the process has used no CPU"),
-    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 8) was still running 1 s after Ctrl-C")])
+    ("watchdog", 3, "chunk 2 (from step 5) is stuck: the process has used no CPU"),
+    ("sigint", interrupts.EXIT_CODE, "chunk 2 (from step 5) was still running 1 s after Ctrl-C")])
 def test_a_stuck_run_ends_in_seconds_and_keeps_the_finished_chunk(tmp_path, mode, code, says):
+  # The world, robots and settings of tests/test_animate.py's run (conftest.tiny_office), one
+  # planning round a chunk as its replay runs them: that module's programs, loaded from the
+  # suite's compilation cache instead of compiled again (~15 s).
+  from jaxplore.maps import save_map
+  world = tmp_path / "tiny_office.yaml"
+  save_map(tiny_office(), world)
   out = tmp_path / "run"
   proc = subprocess.run(
-      [sys.executable, "-c", STUCK_SECOND_CHUNK, "run", "--world", "open", "--res", "0.5",
-       "--robots", "1", "--max-steps", "40", "--set", "r_max=2", "--devices", "1",
-       "--chunk-epochs", "1", "--replan-every", "8", "--no-progress", "--out", str(out)],
+      [sys.executable, "-c", STUCK_SECOND_CHUNK, "run", "--world", str(world),
+       "--robots", "2", "--max-steps", "40", "--set", "r_max=3", "--devices", "1",
+       "--chunk-epochs", "1", "--replan-every", "5", "--no-progress", "--out", str(out)],
       cwd=REPO, env=subprocess_env(STUCK_MODE=mode), capture_output=True, text=True, timeout=240)
   assert proc.returncode == code, proc.stderr[-3000:]
   assert says in proc.stderr and "partial results kept" in proc.stderr, proc.stderr[-3000:]
   assert "Traceback" not in proc.stderr
   import pandas as pd
   curves = pd.read_parquet(out / "curves.parquet")
-  assert curves.step.max() == 8  # the first chunk's steps, written
+  assert curves.step.max() == 5  # the first chunk's steps, written

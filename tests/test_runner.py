@@ -6,6 +6,7 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import tiny_office
 
 import jaxplore
 from jaxplore import cli
@@ -13,8 +14,11 @@ from jaxplore.config import ConfigError
 from jaxplore.maps import MapError
 from jaxplore.runspec import RunSpec
 
-SMALL = dict(world="lab", robots=2, max_steps=40, replan_every=5, progress=False, quiet=True,
-             params={"r_max": 3.0})
+# The world and settings of tests/test_animate.py's run (see conftest.tiny_office): its engine
+# program serves both modules (~20 s a compile). Worlds by name: tests/test_smoke.py and
+# tests/maps/test_worlds.py.
+SMALL = dict(world=tiny_office(), robots=2, max_steps=40, replan_every=5, progress=False,
+             quiet=True, params={"r_max": 3.0})
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +128,7 @@ def test_the_progress_bar_shows_the_compile_then_the_steps(small_run, capsys):
   """The bar is up before the compile (a minute on a GPU), saying so, then counts the steps."""
   jaxplore.run(**dict(SMALL, progress=True, quiet=False))
   printed = capsys.readouterr()
-  label = f"{RunSpec().planner} x2 on lab"
+  label = f"{RunSpec().planner} x2 on tiny_office"
   assert f"{label} (compiling):" in printed.err
   assert f"{label}: 100%" in printed.err and "40/40" in printed.err and "done=" in printed.err
   assert "termination:" in printed.out

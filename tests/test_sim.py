@@ -1,7 +1,5 @@
 """The engine end to end on tiny worlds: termination reasons, determinism, no retrace, no collision."""
 
-import dataclasses
-
 import chex
 import jax
 import jax.numpy as jnp
@@ -12,7 +10,7 @@ from conftest import box_world
 from jaxplore import sim
 from jaxplore.config import config_for, make_params
 
-ROBOTS = 3
+ROBOTS = 4  # tests/test_reference_numpy.py's four starts: rooms_run's program serves it too
 
 
 def setup(grid, max_steps=300, r_max=3.0, pose_noise=False, **overrides):
@@ -173,28 +171,31 @@ def test_li2020_plans_alike_in_both_strategies(rooms):
 
 
 # The engine's own parameters, with li2020 (the planner that also reads the entropy map); every
-# planner's weights alone are checked by tests/planners/test_conformance.py.
+# planner's weights alone are checked by tests/planners/test_conformance.py. The batch is
+# tests/test_sweep.py's (its SETTINGS, a chunk of 3 robots, the chunk's planning rounds): the
+# engine program that module compiles first is loaded from the suite's compilation cache, not
+# compiled again (~30 s; a retrace is counted by this test's own jit all the same).
 @pytest.mark.parametrize("planner", ["li2020"])
-def test_changing_a_traced_parameter_does_not_retrace(rooms, planner):
-  from jaxplore.planners import get_planner
-  grid = rooms
-  weights = get_planner(planner).defaults
-  base = make_params("li2020", res=grid.res, r_max=3.0, planner=weights)
-  config = dataclasses.replace(config_for(grid.shape, grid.res, base, max_steps=12, replan_every=6),
-                               planner=planner, max_update_radius_cells=30)
-  world = sim.make_world(grid, float(base.r_robot))
-  params = sim.broadcast_params(base, ROBOTS)
-  keys = jax.random.split(jax.random.PRNGKey(1), ROBOTS)
+def test_changing_a_traced_parameter_does_not_retrace(planner):
+  from jaxplore import driver
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+  resolved = resolve(RunSpec(world="open", res=0.5, planner=planner, max_steps=30, replan_every=5,
+                             params={"r_max": 2.0}, robots=3))
+  config, world = resolved.config, resolved.world
+  params = resolved.batch().params
+  keys = jax.random.split(jax.random.PRNGKey(1), 3)
   state = sim.reset_batch(config, world, params, keys)
   chex.clear_trace_counter()
   advance = jax.jit(chex.assert_max_traces(sim.advance_unjitted, n=1), static_argnames=("config", "n_epochs"))
-  advance(config, world, params, state, n_epochs=2)
+  n_epochs = driver.chunk_epochs_for(config, None)
+  advance(config, world, params, state, n_epochs=n_epochs)
   # All at once: any one of them compiled in as a constant would make this call retrace.
-  changes = {"v_max": 0.4, "r_max": 2.0, "alpha": 1.0, "l_free": -0.5}
-  changed = params.replace(**{name: jnp.full((ROBOTS,), value, jnp.float32)
+  changes = {"v_max": 0.4, "r_max": 1.5, "alpha": 1.0, "l_free": -0.5}
+  changed = params.replace(**{name: jnp.full((3,), value, jnp.float32)
                               for name, value in changes.items()},
                            planner={name: value * 0.5 for name, value in params.planner.items()})
-  out, _ = advance(config, world, changed, state, n_epochs=2)
+  out, _ = advance(config, world, changed, state, n_epochs=n_epochs)
   jax.block_until_ready(out)
 
 

@@ -43,7 +43,7 @@ def drive(config, params, seed):
   world = sim.make_world(GRID, 0.2)
   truth = jnp.asarray(GRID.occupied, jnp.float32)
 
-  def body(state, _):
+  def body(params, state):
     state, rec = robot.step(config, world, params, state)
     extra = {}
     if state.graph is not None and state.graph.truth is not None:
@@ -60,7 +60,9 @@ def drive(config, params, seed):
     state = robot.reset(config, world, params, key, start)
     state = state.replace(waypoints=jnp.asarray(ROUTE, jnp.int32), path_len=jnp.int32(len(ROUTE)),
                           path_idx=jnp.int32(1), look_at=jnp.asarray(ROUTE[-1], jnp.int32))
-    return jax.lax.scan(body, state, None, length=STEPS)
+    # params traced in every step too (closed over, its numbers were constants of the program:
+    # one compile per setting of a fixture, not one for them all)
+    return jax.lax.scan(lambda state, _: body(params, state), state, None, length=STEPS)
 
   return world, jax.tree.map(np.asarray, run(params, jax.random.PRNGKey(seed)))
 
@@ -82,7 +84,9 @@ def unmatched_drives(slam_drives):
   config, params, _ = slam_drives
   # 5 % odometry noise: enough drift for a closure to correct, little enough that the drive's
   # path is not cut short by walls mapped in the wrong place (the motion gate of robot.step).
-  params = params.replace(slam_min_response=jnp.float32(1.0), odom_noise_d=jnp.float32(0.05),
+  # Each value keeps its leaf's type (slam_min_response is a weakly typed default): a strongly
+  # typed float32 in its place was another program, compiled again (~15 s).
+  params = params.replace(slam_min_response=1.0, odom_noise_d=jnp.float32(0.05),
                           odom_noise_phi=jnp.float32(0.05))
   return [drive(config, params, seed) for seed in SEEDS]
 
