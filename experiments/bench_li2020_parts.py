@@ -86,24 +86,24 @@ def parts(config, world):
   def view_of(params, state):
     return planning.belief_view(config, params, state, robot_view(config, world, state).cell)
 
-  def solve(params, view, robot):
+  def solve(params, view, entropy, robot):
     weights = params.planner
-    b_e, b_g = li2020.boundaries(view, weights["tau_e"])
+    b_e, b_g = li2020.boundaries(view, entropy, weights["tau_e"])
     return ctx.shortest_paths(li2020.edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]),
                               robot.cell)
 
   def geometry(params, robot, sp):
     return li2020.path_geometry(ctx, robot, params, sp.pred)
 
-  def candidates(params, view, sp, cov):
+  def candidates(params, view, entropy, sp, cov):
     within = (linalg.det3(cov) <= params.planner["det_sigma_max"]) & jnp.isfinite(sp.dist).ravel()
-    b_e, b_g = li2020.boundaries(view, params.planner["tau_e"])
+    b_e, b_g = li2020.boundaries(view, entropy, params.planner["tau_e"])
     cut = nearest_ancestor(sp.pred.ravel(), within)
     return jnp.where((b_e | b_g).ravel(), cut, -1)
 
-  def gains_of(params, view):
-    settings = ctx.settings if ctx.settings is not None else li2020.Settings()
-    return li2020.cell_gains(view, params, params.planner["h0"], ctx.r_e_cells, settings.eq21)
+  def gains_of(params, view, entropy):
+    return li2020.cell_gains(view, entropy, params, params.planner["h0"], li2020.r_e_cells(ctx),
+                             ctx.settings.eq21)
 
   def path_gain(view, robot, sp, gains):
     return li2020.path_gains(ctx, view, robot, sp.pred, gains[:1])
@@ -122,7 +122,7 @@ def visible_loop_steps(config) -> int:
   """The loop steps of ``li2020.visible_gains`` at the strategy's block (blocks of offsets and
   of crescent memberships, and the outer loop's steps over two depths each)."""
   ctx = planner_context(config)
-  _, counts, _, rim_counts = li2020.sight_levels(ctx.r_e_cells)
+  _, counts, _, rim_counts = li2020.sight_levels(li2020.r_e_cells(ctx))
   block = li2020.VISIBLE_BLOCK[config.strategy]
   blocks = lambda n: int(np.sum(-(-n // block)))
   return blocks(counts) + blocks(rim_counts) + counts.size // 2
@@ -155,11 +155,12 @@ def parts_rows(config, world, params, state, chunk: int, repeats: int) -> list[d
 
   views = timed("belief view", fn["view_of"], p, s)
   robot = jax.vmap(lambda st: robot_view(config, world, st))(s)
-  sp = timed("shortest paths", fn["solve"], p, views, robot,
+  entropy = s.memory["entropy_map"]  # li2020's I_e, in its memory
+  sp = timed("shortest paths", fn["solve"], p, views, entropy, robot,
              trips=lambda out: f"{int(out.sweeps.max())} {method} rounds")
   _, cov, _ = timed("path geometry", fn["geometry"], p, robot, sp)
-  timed("candidates", fn["candidates"], p, views, sp, cov)
-  gains = timed("cell gains", fn["gains_of"], p, views)
+  timed("candidates", fn["candidates"], p, views, entropy, sp, cov)
+  gains = timed("cell gains", fn["gains_of"], p, views, entropy)
   timed("path gains (one channel)", fn["path_gain"], views, robot, sp, gains,
         trips=lambda _: f"{visible_loop_steps(config)} visible-gain loop steps")
   goal = _farthest_goal(sp)

@@ -46,7 +46,6 @@ def main(argv=None):
   from jaxplore import sim
   from jaxplore.planners import get_planner
   from jaxplore.resolve import resolve
-  from jaxplore.robot import keeps_entropy_map
   from jaxplore.runspec import RunSpec
 
   rows = []
@@ -62,14 +61,16 @@ def main(argv=None):
     window = config.plan_window if sim.uses_window(config) else "off"
     params_b = sim.broadcast_params(params, args.robots)
     if states is None:  # the same belief states for every planner, with Li's entropy map
-      warm = dataclasses.replace(config, entropy_map=True)
+      warm = resolve(RunSpec(world=args.world, planner="li2020", robots=args.robots,
+                             max_steps=args.warm_steps + 8)).config
       keys = jax.random.split(jax.random.PRNGKey(0), args.robots)
       states = sim.reset_batch(warm, world, params_b, keys)
       states, _ = sim.advance(warm, world, params_b, states, args.warm_steps // warm.replan_every)
     memory = get_planner(planner).initial_memory(sim.planner_context(config), params)
-    planner_states = states.replace(
-        memory=jax.tree.map(lambda x: jnp.broadcast_to(x, (args.robots,) + jnp.shape(x)), memory),
-        entropy_map=states.entropy_map if keeps_entropy_map(config) else None)
+    memory = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.robots,) + jnp.shape(x)), memory)
+    if isinstance(memory, dict) and "entropy_map" in memory:  # li2020's, warmed up with them
+      memory = dict(memory, entropy_map=states.memory["entropy_map"])
+    planner_states = states.replace(memory=memory)
     n_dev = min(args.devices, len(jax.devices()))
     # Every robot plans (as when all arrive at once): the engine's per-robot planning loop.
     fn = lambda p, s: sim.plan_where_needed(config, world, p, s.replace(busy=jnp.zeros_like(s.busy)))

@@ -83,7 +83,7 @@ def main(argv=None):
     resolved = resolve(RunSpec(world=world_name, planner="li2020", robots=args.robots,
                                max_steps=args.warm_steps + 8))
     config, params, world = resolved.config, resolved.params, resolved.world
-    radius, chunk = config.r_e / config.res, config.plan_chunk
+    radius, chunk = li2020.r_e_cells(planning.planner_context(config)), config.plan_chunk
     settings = config.planner.settings
     params_b = sim.broadcast_params(params, args.robots)
     keys = jax.random.split(jax.random.PRNGKey(0), args.robots)
@@ -92,7 +92,8 @@ def main(argv=None):
 
     def inputs(p, s):
       view = planning.belief_view(config, p, s, jnp.zeros(2, jnp.int32))
-      return li2020.cell_gains(view, p, p.planner["h0"], radius, settings.eq21), view.occupied
+      return (li2020.cell_gains(view, s.memory["entropy_map"], p, p.planner["h0"], radius,
+                                settings.eq21), view.occupied)
 
     gains, occupied = jax.jit(jax.vmap(inputs))(params_b, states)
     gains = gains.reshape((-1, chunk) + gains.shape[1:])  # rounds of plan_chunk robots

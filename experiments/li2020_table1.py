@@ -123,7 +123,7 @@ def main(argv=None):
       # R_e is part of the tag: parts from before it was derived by Eq 5-6 are not reused.
       name, weights = VARIANTS.get(planner, (planner, None))
       r_e = resolve(RunSpec(world=spec, planner=name, robots=1, preset="li2020", res=res,
-                            planner_params=weights or {})).config.r_e
+                            planner_params=weights or {})).config.planner.settings.r_e
       tag = (f"{world}_{planner}_s{args.seeds}_m{max_steps or 'auto'}_re{r_e:.2f}"
              + ("_pn" if args.pose_noise else ""))
       part_e, part_c = out / f"{tag}.episodes.parquet", out / f"{tag}.curves.parquet"

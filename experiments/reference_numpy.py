@@ -46,6 +46,8 @@ from scipy.sparse.csgraph import dijkstra
 
 LN2 = math.log(2.0)
 CORNER_EPS = 1e-3  # cells; as jaxplore.sensor.CORNER_EPS
+# The entropy map's settings, as jaxplore.planners.li2020 declares their defaults.
+LI2020_DEFAULTS = {"r_e": 0.75, "alpha": 1.5, "entropy_k": 0.5}
 NEIGHBOURS_8 = tuple((di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0))
 RUNNING, COMPLETE, EXHAUSTED, TIMEOUT = 0, 1, 2, 3
 REASONS = {RUNNING: "running", COMPLETE: "complete", EXHAUSTED: "exhausted", TIMEOUT: "timeout"}
@@ -382,7 +384,7 @@ class ReferenceSimulator:
     occupied: bool[H, W] truth. res: m/cell. origin: (x, y) m of cell (0, 0)'s corner.
     params: Params fields by name (floats).
     config: a SimConfig (or a mapping with its n_beams, max_range_cells, path_capacity,
-      replan_every, max_steps, max_inflation_cells, r_e and optionally pose_noise).
+      replan_every, max_steps, max_inflation_cells and optionally pose_noise and r_e).
     start_pose: (x, y, θ).
   """
 
@@ -392,7 +394,11 @@ class ReferenceSimulator:
     self.res = float(res)
     self.origin = np.asarray(origin, float)
     self.p = {k: float(v) for k, v in params.items() if not isinstance(v, Mapping)}
-    self.p.setdefault("r_e", float(settings["r_e"]))  # R_e is static config (SimConfig.r_e)
+    # Li's entropy map is li2020's (R_e a static setting, alpha and k weights): given with the
+    # params (or R_e with a mapping config), else li2020's defaults; the map is kept whatever
+    # the planner, as the engine kept it before it became li2020's.
+    for name, default in LI2020_DEFAULTS.items():
+      self.p.setdefault(name, float(settings.get(name, default)))
     self.n_beams = int(settings["n_beams"])
     self.n_cross = int(settings["max_range_cells"]) + 1
     self.capacity = int(settings["path_capacity"])

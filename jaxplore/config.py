@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
 from typing import Any
 
 import jax.numpy as jnp
@@ -21,7 +22,7 @@ import numpy as np
 from jaxplore import posegraph, pytrees
 from jaxplore.errors import ConfigError, shown
 from jaxplore.sensors import SENSORS, RaySensor, get_sensor
-from jaxplore.settings import declared, setting
+from jaxplore.settings import LENGTH_LIMIT_M, check_length, declared, setting
 
 # The SLAM models (SimConfig.slam; jaxplore.slam.model).
 SLAM_MODELS = ("oracle", "scan_matching")
@@ -55,7 +56,7 @@ def resolve_strategy(strategy: str = "auto", backend: str | None = None) -> str:
 class SimConfig:
   """Everything that fixes a shape or a loop bound. Hashable; a jit cache key.
 
-  The fields users set by name (``r_e``, ``slam``, the SLAM model's search sizes, ...) are
+  The fields users set by name (``sensor``, ``slam``, the SLAM model's search sizes, ...) are
   declared with :func:`jaxplore.settings.setting`: their help, range and unit are there (and in
   ``jaxplore settings``); the others are sized by :func:`config_for` or given by the run.
 
@@ -74,10 +75,6 @@ class SimConfig:
     pose_noise: corrupt odometry and dead-reckon the estimate; when False the estimate
       is the true pose (the covariance is still propagated for planning).
     max_inflation_cells: static bound of the robot radius in cells (``Params.r_robot``).
-    max_update_radius_cells: static bound of the entropy-map update radius ``R_u = α·R_e`` in cells.
-    entropy_map: keep Li's entropy map I_e (Eq 1-3) in the state and update it every step even
-      if the planner does not read it (it is always kept for one that does:
-      ``PlannerSpec.needs_entropy_map``).
     dijkstra_max_sweeps: bound on cone-sweep rounds of the shortest-path kernel.
     dijkstra_tiles_after_rounds: the solver's ``tiles_after_rounds``
       (:func:`jaxplore.graph.shortest_paths`): rounds of whole-grid sweeps after which a plan not
@@ -114,15 +111,6 @@ class SimConfig:
   planner: Any = "nearest_frontier"
   pose_noise: bool = False
   max_inflation_cells: int = 3
-  max_update_radius_cells: int = 30
-  r_e: float = setting(0.75, "Li et al. Eq 5-6: the effective radius R_e (the entropy map's "
-                       "update radius is alpha * R_e, li2020's gain disc R_e); with a preset "
-                       "and unset: derived from the lidar", owner="entropy map", unit="m",
-                       static=True, gt=0)
-  dpi_min: float = setting(0.0, "Li et al. Eq 6: the beam density R_e is derived at (0: one "
-                           "beam per cell)", owner="entropy map", unit="beams/m", static=True,
-                           ge=0)
-  entropy_map: bool = False
   dijkstra_max_sweeps: int = 512
   dijkstra_tiles_after_rounds: int = 0
   plan_chunk: int = 4
@@ -174,7 +162,7 @@ class SimConfig:
       raise ConfigError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
     object.__setattr__(self, "strategy", resolve_strategy(self.strategy))
     for name in ("height", "width", "n_beams", "max_range_cells", "path_capacity", "replan_every",
-                 "max_steps", "dijkstra_max_sweeps", "plan_chunk", "max_update_radius_cells"):
+                 "max_steps", "dijkstra_max_sweeps", "plan_chunk"):
       value = getattr(self, name)
       if not isinstance(value, (int, np.integer)) or value < 1:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -243,10 +231,6 @@ class Params:
                         owner="belief", gt=0, lt=0.5)
   p_occ: Any = setting(0.65, "a cell with P(occupied) above this is believed occupied",
                        owner="belief", gt=0.5, lt=1)
-  entropy_k: Any = setting(0.5, "Li et al. Eq 3: the smoothing k of the entropy map",
-                           owner="entropy map", ge=0, lt=1)
-  alpha: Any = setting(1.5, "Li et al. Eq 7: the entropy map is updated within R_u = alpha * "
-                       "R_e of the robot", owner="entropy map", gt=0)
   v_max: Any = setting(0.25, "the robot's speed", owner="robot", unit="m/s", gt=0)
   w_max: Any = setting(1.0, "the robot's turn rate", owner="robot", unit="rad/s", gt=0)
   dt: Any = setting(0.4, "a motion step's duration (unset: res / v_max, one cell per step)",
@@ -444,9 +428,6 @@ def validate_params(params: Params, config: SimConfig) -> None:
                       f"need {shown(np.ceil(half_turn))} steps to turn half a circle, more than "
                       f"its {config.max_steps} and 1000 (dt = res / v_max is {shown(p.dt)} s: "
                       f"is v_max = {shown(p.v_max)} m/s meant?)")
-  max_ru = config.max_update_radius_cells * config.res
-  check("alpha", np.asarray(p.alpha) * config.r_e, lambda a: a <= max_ru + 1e-6,
-        f"such that alpha * r_e <= max_update_radius_cells * res = {max_ru:.3g} m")
   max_rr = config.max_inflation_cells * config.res
   check("r_robot", p.r_robot, lambda a: a <= max_rr + 1e-6,
         f"<= max_inflation_cells * res = {max_rr:.3g} m (raise SimConfig.max_inflation_cells)")
@@ -500,86 +481,30 @@ def auto_plan_window(height: int, width: int, reach_cells: int, max_inflation_ce
   return side if 2 * side * side <= height * width and side < min(height, width) else 0
 
 
-def effective_radius(res: float, fov: float, n_beams: int, dpi_min: float | None = None) -> float:
-  """Li et al.'s effective radius R_e (Eq 5-6), m: the largest distance D at which the scanner
-  density ``S_dpi = 1 / (D·tan θ)`` stays above ``dpi_min``, i.e. ``1 / (dpi_min·tan θ)``.
-
-  Args:
-    res: metres per cell; ``dpi_min`` defaults to one beam per cell, ``1 / res``.
-    fov, n_beams: the lidar's field of view (rad) and beam count; θ is the angle between two
-      adjacent beams (:func:`jaxplore.sensor.beam_angles`' spacing).
-    dpi_min: Eq 6's minimum density, beams per metre.
-  """
-  if n_beams < 2 or not fov > 0:
-    raise ConfigError(f"R_e needs at least 2 beams over a positive field of view, got {n_beams}, "
-                      f"{fov}")
-  step = fov / n_beams if fov >= 2 * math.pi - 1e-6 else fov / (n_beams - 1)
-  spacing = res if dpi_min is None else 1.0 / dpi_min
-  if not spacing > 0:
-    raise ConfigError(f"dpi_min must be > 0 beams per metre, got {dpi_min}")
-  return spacing / math.tan(step)
-
-
-# A length that sizes buffers (lidar range, robot radius, R_e, R_u, loop radius) may reach
-# this far, or across the map's diagonal if that is longer: beyond the diagonal it reaches no
-# more cells, only sizes buffers for cells that do not exist.
-LENGTH_LIMIT_M = 100.0
-
-
-def check_length(name: str, value, limit: float, sizes: str, length: str | None = None) -> None:
-  """Raises :class:`ConfigError` naming parameter ``name`` when the ``length`` it gives (m; a
-  scalar or one per robot; default: the parameter itself), which sizes ``sizes``, is NaN,
-  infinite, negative or beyond ``limit`` metres."""
-  arr = np.asarray(value, np.float64)
-  if not np.all(np.isfinite(arr)):
-    raise ConfigError(f"parameter {name} is NaN or infinite: {shown(arr, ~np.isfinite(arr))}")
-  if np.any(arr < 0):
-    raise ConfigError(f"parameter {name} must be >= 0, got {shown(arr, arr < 0)}")
-  if np.any(arr > limit):
-    raise ConfigError(f"parameter {name}: {length or name} = {float(arr.max()):.4g} m sizes "
-                      f"{sizes}, and "
-                      f"may be at most the map's diagonal or {LENGTH_LIMIT_M:g} m, whichever is "
-                      f"longer ({limit:.4g} m here): beyond the map it reaches no more cells")
-
-
 def config_for(world_shape: tuple[int, int], res: float, params: Params, *,
-               preset: str | None = None, **overrides) -> SimConfig:
+               preset: str | None = None, planner_given: Iterable[str] = (),
+               **overrides) -> SimConfig:
   """A :class:`SimConfig` sized for a world and the largest range/radius in ``params``.
 
-  With a ``preset`` and no ``r_e`` among the overrides, R_e is derived from the lidar by Eq 5-6
-  (:func:`effective_radius`, one beam per cell unless ``dpi_min`` is given; the widest ``fov``
-  of ``params``), at most the lidar's range ``r_max``; without a preset it is ``SimConfig.r_e``'s
-  default unless given.
+  A planner that sizes static settings of its own from the run (``PlannerSpec.size_settings``:
+  li2020's R_e from the lidar, the bound of its update radius) is given them here, but for
+  those the user gave: ``planner_given`` names them (what the resolver passes), and so does
+  every setting whose value differs from its declared default.
   """
-  dpi_min = overrides.get("dpi_min") or None  # 0: one beam per cell
   limit = max(math.hypot(*world_shape) * res, LENGTH_LIMIT_M)
   # Lengths that size buffers are checked before anything is sized from them.
   check_length("r_max", params.r_max, limit, "the lidar's buffers")
   r_max_all = np.asarray(params.r_max, np.float64)
-  if np.any(r_max_all <= 0):  # checked here: R_e is derived from it below
+  if np.any(r_max_all <= 0):  # checked here: planners may size from it (li2020's R_e)
     raise ConfigError(f"parameter r_max must be > 0, got {shown(r_max_all, r_max_all <= 0)}")
   check_length("r_robot", params.r_robot, limit, "the robot's inflation kernels")
   check_length("loop_radius", params.loop_radius, limit, "the loop-closure line-of-sight samples")
-  check_length("alpha", params.alpha, math.inf, "")
-  if preset is not None and "r_e" not in overrides:
-    n_beams = int(overrides.get("n_beams", PRESETS[preset].n_beams))
-    # A scan sees nothing beyond r_max, however dense its beams would be there (coarse grids).
-    overrides["r_e"] = min(effective_radius(float(res), float(np.max(np.asarray(params.fov))),
-                                            n_beams, dpi_min),
-                           float(np.max(np.asarray(params.r_max))))
-    check_length("r_e", overrides["r_e"], limit, "the gain kernels",
-                 "R_e derived from fov, the beam count and dpi_min by Eq 5-6,")
-  elif "r_e" in overrides:
-    check_length("r_e", overrides["r_e"], limit, "the gain kernels (R_e)")
   r_max = float(np.max(np.asarray(params.r_max)))
   r_robot = float(np.max(np.asarray(params.r_robot)))
-  r_u = float(np.max(np.asarray(params.alpha))) * float(overrides.get("r_e", SimConfig.r_e))
-  check_length("alpha", r_u, limit, "the entropy-map update", "R_u = alpha * r_e")
   kwargs: dict[str, Any] = dict(
       height=int(world_shape[0]), width=int(world_shape[1]), res=float(res),
       max_range_cells=max(1, math.ceil(r_max / res - 1e-6)),
       max_inflation_cells=max(0, math.ceil(r_robot / res - 1e-6)),
-      max_update_radius_cells=max(1, math.ceil(r_u / res - 1e-6)),
       max_loop_cells=max(1, math.ceil(float(np.max(np.asarray(params.loop_radius))) / res - 1e-6)),
   )
   if preset is not None:
@@ -591,4 +516,12 @@ def config_for(world_shape: tuple[int, int], res: float, params: Params, *,
     reach = plan_reach_cells(kwargs["max_range_cells"], kwargs["res"])
     kwargs["plan_window"] = auto_plan_window(kwargs["height"], kwargs["width"], reach,
                                              kwargs["max_inflation_cells"])
-  return SimConfig(**kwargs)
+  config = SimConfig(**kwargs)
+  spec = config.planner
+  if spec.size_settings is None:
+    return config
+  given = frozenset(planner_given) | spec.changed_settings()
+  sized = spec.size_settings(spec.settings, given, config, params, preset)
+  if sized == spec.settings:
+    return config
+  return dataclasses.replace(config, planner=spec.with_settings(sized))

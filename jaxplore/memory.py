@@ -41,7 +41,8 @@ def _largest_part(config: SimConfig) -> str:
 FIXED_BYTES = 128 << 20  # what a big grid adds whatever its size (the intercept of the fit)
 GRID_BYTES_PER_CELL = 130  # the world (host and device), one robot's planning temporaries, and
 # the tables' per-robot map quality (float64 SSIM filters), one robot at a time
-ROBOT_BYTES_PER_CELL = 20  # a robot's belief, entropy map and blacklist, and their host copies
+ROBOT_BYTES_PER_CELL = 20  # a robot's belief and blacklist, and their host copies (a planner's
+# memory, li2020's entropy map among them, is counted from its shapes: planner_memory_bytes)
 # Lockstep (an accelerator): a robot's maps and the whole batch's per-stage temporaries, per cell
 # of the grid and robot; no lidar term (the scan's buffers are the batch's, kernel by kernel).
 # Fitted to the device's peak memory on one H200 (experiments/results/bench_accelerator_gpu.md):

@@ -77,7 +77,7 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
   # A loop, not unrolled: XLA would fuse each step into the next one's 8 neighbour reads.
   escape = jax.lax.fori_loop(0, config.max_inflation_cells + 1, widen, escape)
   return planners_base.BeliefView(
-      logodds=state.logodds, entropy_map=state.entropy_map, free=free, occupied=occupied,
+      logodds=state.logodds, free=free, occupied=occupied,
       unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,
       frontier=mapping.frontier(free, unexplored(config, unknown), occupied),
       blacklist=state.blacklist,
@@ -91,7 +91,7 @@ def _window_origin(config: SimConfig, cell, side: int):
                     jnp.clip(cell[1] - side // 2, 0, config.width - side)]).astype(jnp.int32)
 
 
-_MAP_FIELDS = ("logodds", "entropy_map", "blacklist")
+_MAP_FIELDS = ("logodds", "blacklist")
 
 
 def _small_fields() -> tuple[str, ...]:
@@ -122,7 +122,9 @@ def _propose(config: SimConfig, params: Params, state: State, robot, origin, key
   if not whole_grid:
     view, edge = planning_window.restrict(view, cell, origin, (config.height, config.width),
                                           window_margin(config.max_inflation_cells))
-  result, memory = spec.propose(ctx, view, robot.replace(cell=cell), params, key, state.memory)
+  local = robot.replace(cell=cell, position=None if robot.position is None else
+                        robot.position - origin.astype(robot.position.dtype))
+  result, memory = spec.propose(ctx, view, local, params, key, state.memory)
   certified = jnp.bool_(True) if whole_grid else planning_window.certified(result, edge, config.res)
   return planning_window.to_grid(result, origin), memory, certified
 

@@ -238,7 +238,8 @@ def resolve(spec: RunSpec) -> Resolved:
   grid = load_grid(spec)
   params = build_params(planner, spec.preset, grid.res, dict(spec.params),
                         dict(spec.planner_params))
-  planner = planner.with_settings(**split_planner_params(planner, spec.planner_params)[1])
+  given = split_planner_params(planner, spec.planner_params)[1]
+  planner = planner.with_settings(**given)
   overrides = dict(planner=planner, pose_noise=spec.pose_noise, **split_params(spec.params)[1])
   slam = overrides.get("slam", SimConfig.slam)
   for name in ("replan_every", "path_capacity", "plan_window", "strategy"):
@@ -258,7 +259,7 @@ def resolve(spec: RunSpec) -> Resolved:
     if spec.graph_loops is not None:
       overrides["graph_loops"] = spec.graph_loops
   config = config_for(grid.shape, grid.res, params, preset=spec.preset, max_steps=max_steps,
-                      **overrides)
+                      planner_given=given, **overrides)
   validate_params(params, config)
   planner.check_weights(params.planner)
   if planner.validate is not None:

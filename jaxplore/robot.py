@@ -7,10 +7,10 @@ robot stays, its path ends, and the cells it touched become occupied in its beli
 would tell it) or, nearer than where it stands, one its belief holds (walls mapped since it
 planned: its path ends and it plans again) -> dead-reckon the estimate and propagate Σ
 (Li et al. 2020, Eq 16-17) -> scan the truth from the true pose -> relocalise if the scan ends on
-enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> update
-Li's entropy map within ``R_u`` (Eq 3; only when the planner reads it) -> the SLAM pose graph
-(keyframes and loop closures, :mod:`jaxplore.posegraph`; only when the run keeps one) -> the
-planner's step hook (only when it has one) -> metrics -> termination.
+enough well-mapped walls -> integrate the scan into the belief at the *estimated* pose -> the
+SLAM pose graph (keyframes and loop closures, :mod:`jaxplore.posegraph`; only when the run keeps
+one) -> the planner's step hook (only when it has one: li2020 updates its entropy map there) ->
+metrics -> termination.
 
 With the ``scan_matching`` SLAM model the robot steers by its estimate instead (pure pursuit
 along a straight run of its path, :func:`_lookahead`), the true pose moved by the same command,
@@ -50,7 +50,6 @@ class State:
     pose: f32[3] true pose (x m, y m, θ rad). pose_est: f32[3] the robot's estimate.
     cov: f32[3, 3] pose covariance Σ of the estimate.
     logodds: f32[H, W] occupancy belief.
-    entropy_map: f32[H, W] Li's I_e (Eq 1-3), or None when the planner does not read it.
     blacklist: bool[H, W] goals found unresolvable (never chosen again).
     waypoints: i32[L, 2] current path; path_len: i32; path_idx: i32 next waypoint.
     goal, look_at, last_goal: i32[2] cells of the current and previous plan.
@@ -73,7 +72,6 @@ class State:
   pose_est: chex.Array
   cov: chex.Array
   logodds: chex.Array
-  entropy_map: chex.Array
   blacklist: chex.Array
   waypoints: chex.Array
   path_len: chex.Array
@@ -125,11 +123,6 @@ class Record:
   false_closures: Any = None
 
 
-def keeps_entropy_map(config: SimConfig) -> bool:
-  """Whether the state holds Li's entropy map: the planner reads it, or the config asks for it."""
-  return config.entropy_map or config.planner.needs_entropy_map
-
-
 def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
                     ) -> planners_base.PlannerContext:
   """What the planner is told of the run (:class:`~jaxplore.planners.base.PlannerContext`), for
@@ -147,20 +140,20 @@ def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
       dijkstra_max_sweeps=config.dijkstra_max_sweeps,
       dijkstra_tiles_after_rounds=config.dijkstra_tiles_after_rounds,
       max_inflation_cells=config.max_inflation_cells, max_steps=config.max_steps,
-      r_e_cells=config.r_e / config.res if keeps_entropy_map(config) else 0.0,
       settings=spec.settings, strategy=config.strategy)
 
 
 def robot_view(config: SimConfig, world: World, state: State) -> planners_base.RobotView:
-  """The robot as it believes itself to be: estimated pose, its cell, Σ."""
+  """The robot as it believes itself to be: estimated pose, its cell, Σ, its position in cells."""
   return planners_base.RobotView(pose=state.pose_est,
                                  cell=cell_of(state.pose_est[:2], world.origin, config.res),
-                                 cov=state.cov)
+                                 cov=state.cov,
+                                 position=to_cells(state.pose_est[:2], world.origin, config.res))
 
 
 def _sense(config: SimConfig, world: World, params: Params, state: State, key, active,
            odometry=None, first=False):
-  """Scan, localise, integrate into the belief, update the entropy map and the running metrics.
+  """Scan, localise, integrate into the belief and update the running metrics.
 
   ``active`` (bool) masks every change, so a finished or idle robot's maps stay untouched; such a
   robot casts no beam. Under ``vmap`` the robots are processed one after the other with their
@@ -179,7 +172,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   whole_grid = config.strategy == "lockstep"
 
   def one(robot, grids, inputs):
-    logodds, entropy_map, graph = grids
+    logodds, graph = grids
     (params, pose, pose_est, cov, key, active, angles, dirs, est_dirs, odometry, totals) = inputs
     true_uv = to_cells(pose[:2], world.origin, res)[::-1]  # (col, row) coordinates
     noise_key, _ = jax.random.split(key)
@@ -258,12 +251,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       d_covered = jnp.where(rebuilt.done, rebuilt.covered - totals[1], d_covered)
       graph = jax.tree.map(lambda g, new: g.at[robot].set(new), graph.replace(ranges=None),
                            own_graph).replace(ranges=ranges)
-    if entropy_map is not None:
-      ru_cells = jnp.where(active, params.alpha * config.r_e / res, 0.0)
-      entropy_map = mapping.update_entropy_map(
-          entropy_map, logodds, to_cells(pose_est[:2], world.origin, res), ru_cells,
-          params.entropy_k, 2 * config.max_update_radius_cells + 3, robot=robot)
-    return (logodds, entropy_map, graph), (pose_est, cov, d_entropy, d_covered)
+    return (logodds, graph), (pose_est, cov, d_entropy, d_covered)
 
   # Beam directions are computed here, for the whole batch at once, rather than inside the
   # per-robot loop (see sensor.measure).
@@ -276,10 +264,10 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
             (state.entropy, state.covered))
   batched = mapping.per_robot(one, lockstep=whole_grid)
   graph = state.graph if slam else None
-  (logodds, entropy_map, graph), (pose_est, cov, d_entropy, d_covered) = batched(
-      (state.logodds, state.entropy_map, graph), inputs)
+  (logodds, graph), (pose_est, cov, d_entropy, d_covered) = batched((state.logodds, graph),
+                                                                     inputs)
   state = state.replace(graph=graph) if slam else state
-  return state.replace(pose_est=pose_est, cov=cov, logodds=logodds, entropy_map=entropy_map,
+  return state.replace(pose_est=pose_est, cov=cov, logodds=logodds,
                        entropy=state.entropy + d_entropy, covered=state.covered + d_covered)
 
 
@@ -413,7 +401,6 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
   state = State(
       key=key, pose=pose, pose_est=pose, cov=jnp.eye(3, dtype=jnp.float32) * params.sigma0,
       logodds=jnp.zeros((h, w), jnp.float32),
-      entropy_map=jnp.full((h, w), mapping.LN2, jnp.float32) if keeps_entropy_map(config) else None,
       blacklist=jnp.zeros((h, w), bool),
       waypoints=jnp.broadcast_to(cell, (L, 2)).astype(jnp.int32), path_len=jnp.int32(0),
       path_idx=jnp.int32(0), goal=zeros_i2, look_at=cell, last_goal=zeros_i2,
@@ -428,7 +415,40 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
                             beams=config.n_beams if config.slam == "scan_matching" else 0)
              if config.graph_nodes else None))
   state = _sense(config, world, params, state, k_scan, jnp.bool_(True), first=True)
+  state = _step_hook(config, world, params, state, jnp.bool_(True), jnp.bool_(True))
   return _check_complete(world, params, state)
+
+
+def _step_hook(config: SimConfig, world: World, params: Params, state: State, moved, running
+               ) -> State:
+  """The planner's step hook (``PlannerSpec.step_hook``) after the scan just integrated; the
+  memory of a robot that is not ``running`` stays as it is.
+
+  Under ``vmap`` the robots run one after the other with their memories updated in place, as
+  the scan's integration does (:func:`mapping.per_robot`; a memory may hold maps), or, with the
+  ``lockstep`` strategy, all at once."""
+  spec = config.planner
+  hook = spec.step_hook
+  if hook is None:
+    return state
+  ctx = planner_context(config)
+
+  def one(robot, grids, inputs):
+    memory, logodds = grids
+    params, view, moved, running = inputs
+    pick = lambda grid: jax.lax.dynamic_index_in_dim(grid, robot, 0, keepdims=False)
+    own = jax.tree.map(pick, memory)
+    # One robot at a time, a finished robot skips the hook (a select of both under lockstep).
+    new = jax.lax.cond(running, lambda: hook(ctx, params, own, view, pick(logodds), moved),
+                       lambda: own)
+    memory = jax.tree.map(lambda grid, leaf: jax.lax.dynamic_update_index_in_dim(
+        grid, leaf, robot, 0), memory, new)
+    return (memory, logodds), ()
+
+  batched = mapping.per_robot(one, lockstep=config.strategy == "lockstep")
+  (memory, _), _ = batched((state.memory, state.logodds),
+                           (params, robot_view(config, world, state), moved, running))
+  return state.replace(memory=memory)
 
 
 def _watch_stall(params: Params, state: State, moved_m) -> State:
@@ -738,12 +758,7 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
     state = state.replace(graph=posegraph.observe(
         state.graph, state.pose_est, odometry_cov, motion.increment(delta_d, delta_phi), busy,
         state.logodds, world.origin, res, params, 2 * config.max_loop_cells + 2))
-  spec = config.planner
-  if spec.step_hook is not None:
-    memory = spec.step_hook(planner_context(config), params, state.memory,
-                            robot_view(config, world, state), state.logodds, busy)
-    state = state.replace(memory=jax.tree.map(lambda new, old: jnp.where(running, new, old),
-                                              memory, state.memory))
+  state = _step_hook(config, world, params, state, busy, running)
   state = _check_complete(world, params, state)
   timeout = ~state.done & (state.steps >= config.max_steps)
   state = state.replace(done=state.done | timeout, reason=jnp.where(timeout, TIMEOUT, state.reason))

@@ -174,8 +174,15 @@ def _refuse_unknown_params(params: Mapping, planner) -> None:
   settings = planner_settings_of(spec)
   theirs = sorted(spec.defaults) + sorted(
       f.name for f in (dataclasses.fields(settings) if settings is not None else ()))
+  from jaxplore.planners import planner_names
+  owners = {name: [other for other in planner_names()
+                   if kind_of(name, get_planner(other)) in ("weight", "setting")]
+            for name in unknown}
+  whose = "; ".join(f"{name}: planner {', '.join(found)}'s"
+                    for name, found in owners.items() if found)
   raise ConfigError(f"{message}; of planner {spec.name!r}: {', '.join(theirs) or 'none'} "
-                    f"(jaxplore settings --planner {spec.name} lists them with their ranges)")
+                    f"(jaxplore settings --planner {spec.name} lists them with their ranges)"
+                    + (f"; {whose}" if whose else ""))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -225,4 +225,27 @@ def default_text(s: Setting) -> str:
   return f"{text} {s.unit}" if s.unit else text
 
 
-__all__ = ["Setting", "declared", "default_text", "setting", "table"]
+# A length that sizes buffers (lidar range, robot radius, R_e, R_u, loop radius) may reach
+# this far, or across the map's diagonal if that is longer: beyond the diagonal it reaches no
+# more cells, only sizes buffers for cells that do not exist.
+LENGTH_LIMIT_M = 100.0
+
+
+def check_length(name: str, value, limit: float, sizes: str, length: str | None = None) -> None:
+  """Raises :class:`ConfigError` naming parameter ``name`` when the ``length`` it gives (m; a
+  scalar or one per robot; default: the parameter itself), which sizes ``sizes``, is NaN,
+  infinite, negative or beyond ``limit`` metres."""
+  arr = np.asarray(value, np.float64)
+  if not np.all(np.isfinite(arr)):
+    raise ConfigError(f"parameter {name} is NaN or infinite: {shown(arr, ~np.isfinite(arr))}")
+  if np.any(arr < 0):
+    raise ConfigError(f"parameter {name} must be >= 0, got {shown(arr, arr < 0)}")
+  if np.any(arr > limit):
+    raise ConfigError(f"parameter {name}: {length or name} = {float(arr.max()):.4g} m sizes "
+                      f"{sizes}, and "
+                      f"may be at most the map's diagonal or {LENGTH_LIMIT_M:g} m, whichever is "
+                      f"longer ({limit:.4g} m here): beyond the map it reaches no more cells")
+
+
+__all__ = ["LENGTH_LIMIT_M", "Setting", "check_length", "declared", "default_text", "setting",
+           "table"]

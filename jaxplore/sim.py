@@ -59,13 +59,21 @@ def config_from_dict(recorded: dict) -> SimConfig:
   """The :class:`SimConfig` a results folder recorded (:func:`config_record`), the planner looked
   up by its name and given its recorded settings.
 
-  Folders written before R_e became static recorded ``gain_radius_cells`` (R_e in cells).
+  Folders written before R_e became static recorded ``gain_radius_cells`` (R_e in cells); those
+  written before li2020 kept its entropy map recorded ``r_e``, ``dpi_min`` and
+  ``max_update_radius_cells`` with the engine's settings: they go to the planner's settings
+  where it has them.
   """
   values = dict(recorded)
   if "gain_radius_cells" in values:
     values["r_e"] = float(values.pop("gain_radius_cells")) * float(values["res"])
   spec = get_planner(values.get("planner", SimConfig.planner))
-  values["planner"] = spec.with_settings(**(values.get("planner_settings") or {}))
+  settings = dict(values.get("planner_settings") or {})
+  fields = {f.name for f in dataclasses.fields(spec.settings)} if spec.settings else set()
+  for name in ("r_e", "dpi_min", "max_update_radius_cells"):
+    if name in values and name in fields and name not in settings:
+      settings[name] = values[name]
+  values["planner"] = spec.with_settings(**settings)
   known = {f.name for f in dataclasses.fields(SimConfig)}
   return SimConfig(**{k: v for k, v in values.items() if k in known})
 

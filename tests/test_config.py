@@ -1,4 +1,4 @@
-"""Li's effective radius R_e from the lidar (Eq 5-6), and where config_for uses it; the
+"""Li's effective radius R_e from the lidar (Eq 5-6), and li2020 deriving it in config_for; the
 execution strategy, its automatic default and the planner being told it."""
 
 import dataclasses
@@ -8,8 +8,10 @@ import jax
 import numpy as np
 import pytest
 
-from jaxplore.config import (STRATEGIES, ConfigError, SimConfig, config_for, effective_radius,
-                             make_params, resolve_strategy)
+from jaxplore.config import (STRATEGIES, ConfigError, SimConfig, config_for, make_params,
+                             resolve_strategy)
+from jaxplore.planners import get_planner
+from jaxplore.planners.li2020 import LI2020, Settings, effective_radius
 
 
 def eq6_by_search(spacing, beam_step):
@@ -38,20 +40,32 @@ def test_effective_radius_is_eq6s_largest_distance():
     effective_radius(0.1, math.radians(190), 1)
 
 
-def test_config_for_derives_r_e_from_the_preset_unless_given():
+def li_settings(shape, res, params, preset="li2020", **given):
+  """li2020's settings as config_for sizes them, ``given`` the user's."""
+  planner = LI2020.with_settings(**given) if given else "li2020"
+  return config_for(shape, res, params, preset=preset, planner=planner,
+                    planner_given=tuple(given)).planner.settings
+
+
+def test_config_for_has_li2020_derive_r_e_from_the_preset_unless_given():
   params = make_params("li2020", res=0.1)
-  derived = config_for((50, 60), 0.1, params, preset="li2020")
+  derived = li_settings((50, 60), 0.1, params)
   assert derived.r_e == pytest.approx(5.698, abs=1e-3)
   assert derived.max_update_radius_cells == math.ceil(1.5 * derived.r_e / 0.1 - 1e-6)
   # On a coarse grid Eq 6 would reach past the lidar: R_e stops at its range.
   assert effective_radius(0.5, math.radians(190), 190) > float(params.r_max)
-  coarse = config_for((50, 60), 0.5, make_params("li2020", res=0.5), preset="li2020")
+  coarse = li_settings((50, 60), 0.5, make_params("li2020", res=0.5))
   assert coarse.r_e == pytest.approx(float(params.r_max))
-  assert config_for((50, 60), 0.1, params, preset="li2020", dpi_min=1e-30).r_e == pytest.approx(
-      float(params.r_max))
-  assert config_for((50, 60), 0.1, params, preset="li2020", r_e=0.75).r_e == 0.75
-  assert config_for((50, 60), 0.1, params, preset="li2020", dpi_min=20.0).r_e == pytest.approx(2.849, abs=1e-3)
-  assert config_for((50, 60), 0.1, params).r_e == SimConfig.r_e  # no preset: the default
+  assert li_settings((50, 60), 0.1, params, dpi_min=1e-30).r_e == pytest.approx(float(params.r_max))
+  assert li_settings((50, 60), 0.1, params, r_e=0.75).r_e == 0.75  # given, though the default
+  assert li_settings((50, 60), 0.1, params, dpi_min=20.0).r_e == pytest.approx(2.849, abs=1e-3)
+  assert li_settings((50, 60), 0.1, params, preset=None).r_e == Settings().r_e  # no preset
+  bound = li_settings((50, 60), 0.1, make_params("li2020", res=0.1, planner={"alpha": 2.0}),
+                      max_update_radius_cells=200)
+  assert bound.max_update_radius_cells == 200  # given: kept
+  # Other planners have nothing sized: the config holds the registered object.
+  assert config_for((50, 60), 0.1, params, preset="li2020").planner is get_planner(
+      "nearest_frontier")
 
 
 def test_auto_strategy_is_per_robot_on_cpu_and_lockstep_on_accelerators():
@@ -77,17 +91,17 @@ def test_sim_config_resolves_auto_on_construction_and_refuses_unknown_strategies
     ({"r_max": 1e6}, {}, "r_max: r_max = 1e[+]06 m sizes the lidar"),
     ({"r_robot": 1e3}, {}, "r_robot: r_robot = 1000 m"),
     ({"loop_radius": 1e9}, {}, "loop_radius"),
-    ({"alpha": 1e9}, {}, "alpha: R_u = alpha [*] r_e"),
+    ({"planner": {"alpha": 1e9}}, {}, "alpha: R_u = alpha [*] r_e"),
     ({"r_max": float("nan")}, {}, "r_max is NaN or infinite"),
     ({"r_robot": float("inf")}, {}, "r_robot is NaN or infinite"),
-    ({"alpha": float("nan")}, {}, "alpha is NaN or infinite"),
-    ({}, {"r_e": float("nan")}, "r_e is NaN or infinite"),
+    ({"planner": {"alpha": float("nan")}}, {}, "alpha is NaN or infinite"),
+    ({}, {"r_e": float("nan")}, "setting r_e must be finite"),
     ({}, {"r_e": 1e6}, "r_e: r_e = 1e[+]06 m"),
 ])
 def test_lengths_that_size_buffers_are_refused_by_name_before_any_size(overrides, static, match):
   params = make_params("li2020", res=0.1, **overrides)
   with pytest.raises(ConfigError, match=match):
-    config_for((130, 170), 0.1, params, preset="li2020", **static)
+    li_settings((130, 170), 0.1, params, **static)
 
 
 def test_a_refusal_names_each_bad_value_of_a_batch_once():

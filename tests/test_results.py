@@ -154,13 +154,13 @@ def test_a_planners_memory_and_settings_reach_the_results_folder(probe, tmp_path
 
 def test_a_swept_static_setting_makes_a_group_per_value(probe):
   grids = {}  # the GridMap worlds of the sweep
-  spec = sweeps.make_spec({"plan_increment": [1, 3], "alpha": [1.0, 2.0]}, None, None, 0, [0, 1],
+  spec = sweeps.make_spec({"plan_increment": [1, 3], "fov": [3.0, 6.0]}, None, None, 0, [0, 1],
                           box_world(30, 40), [probe, "nearest_frontier"],
                           RunSpec(max_steps=12, params={"r_max": 1.2}), grids)
   made, resolved = schedule.make_schedule(spec, None, grids, None, 1)
   assert [(g.planner, g.names, len(g.rows)) for g in made.groups] == [
-      (probe, ("plan_increment", "alpha"), 4), (probe, ("plan_increment", "alpha"), 4),
-      ("nearest_frontier", ("alpha",), 4)]
+      (probe, ("plan_increment", "fov"), 4), (probe, ("plan_increment", "fov"), 4),
+      ("nearest_frontier", ("fov",), 4)]
   assert [r.config.planner.settings for r in resolved[:2]] == [ProbeSettings(1), ProbeSettings(3)]
   assert resolved[0].config != resolved[1].config  # two compiled programs
   with pytest.raises(ConfigError, match="plan_increment must be an integer, got 2.5"):

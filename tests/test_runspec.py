@@ -21,7 +21,7 @@ def test_create_takes_none_as_the_default_and_json_round_trips():
   assert RunSpec.create(world=None, robots=None, preset=None) == RunSpec()
   spec = RunSpec.create(world="lab", robots=3, start="1,2", params={"alpha": 1.5},
                         planner_params={"k1": (0.1, 0.2, 0.3)}, planner="li2020")
-  assert spec.start == (1.0, 2.0, 0.0) and spec.params["alpha"] == 1.5
+  assert spec.start == (1.0, 2.0, 0.0) and spec.planner_params["alpha"] == 1.5  # li2020's
   assert RunSpec.from_json(spec.to_json()) == spec
   assert RunSpec.create(robot_seeds=[4, 9]).robots == 2  # one robot per seed
   with pytest.raises(dataclasses.FrozenInstanceError):
@@ -37,7 +37,7 @@ def test_create_takes_none_as_the_default_and_json_round_trips():
     (dict(robots=0), "robots must be a positive integer"),
     (dict(params={"r_max": float("nan")}), "r_max.*finite"),
     (dict(params={"warp": 1.0}), "unknown parameter.*warp"),
-    (dict(robots=2, params={"alpha": (1.0, 2.0, 3.0)}), "alpha has 3 values for 2 robots"),
+    (dict(robots=2, params={"r_max": (1.0, 2.0, 3.0)}), "r_max has 3 values for 2 robots"),
     (dict(plan_window=-8), "plan_window"),
     (dict(preset="hubble"), "preset must be one of li2020, .*, got 'hubble'"),
     (dict(start="abc"), "start must be"),
@@ -54,17 +54,22 @@ def test_a_setting_is_named_without_saying_whose_it_is(capsys):
   """A planner's weight or word-valued setting among the simulator's parameters (``--set``), or
   a simulator parameter among the planner's, goes where it belongs; a name given to both, or to
   nobody, is refused naming it."""
-  spec = RunSpec.create(planner="li2020", params={"k1": 0.2, "region": "disc", "r_max": 5.0},
-                        planner_params={"alpha": 2.0})
-  assert dict(spec.params) == {"r_max": 5.0, "alpha": 2.0}
-  assert dict(spec.planner_params) == {"k1": 0.2, "region": "disc"}
-  same = RunSpec.create(planner="li2020", params={"r_max": 5.0, "alpha": 2.0},
-                        planner_params={"k1": 0.2, "region": "disc"})
+  spec = RunSpec.create(planner="li2020", params={"k1": 0.2, "region": "disc", "r_max": 5.0,
+                                                 "alpha": 2.0, "r_e": 1.0},
+                        planner_params={"v_max": 0.3})
+  assert dict(spec.params) == {"r_max": 5.0, "v_max": 0.3}
+  assert dict(spec.planner_params) == {"k1": 0.2, "region": "disc", "alpha": 2.0, "r_e": 1.0}
+  same = RunSpec.create(planner="li2020", params={"r_max": 5.0, "v_max": 0.3},
+                        planner_params={"k1": 0.2, "region": "disc", "alpha": 2.0, "r_e": 1.0})
   assert spec == same
+  # Li's entropy map is li2020's: another planner has no alpha, and is told whose it is.
+  with pytest.raises(ConfigError, match=r"unknown parameter\(s\) \['alpha'\].*of planner "
+                     r"'nearest_frontier': none.*alpha: planner li2020's"):
+    RunSpec.create(planner="nearest_frontier", params={"alpha": 2.0})
   with pytest.raises(ConfigError, match="k1 is given twice"):
     RunSpec.create(planner="li2020", params={"k1": 0.2}, planner_params={"k1": 0.3})
   with pytest.raises(ConfigError, match=r"unknown parameter.*warp'\]; valid: .*; of planner "
-                     r"'li2020': det_sigma_max, .*region.* \(jaxplore settings --planner li2020"):
+                     r"'li2020': alpha, det_sigma_max, .*region.* \(jaxplore settings --planner li2020"):
     RunSpec.create(planner="li2020", params={"warp": 1.0})
   with pytest.raises(ConfigError, match=r"no parameter\(s\) \['r_max'\].*r_max: the simulator's"):
     split_planner_params("nearest_frontier", {"r_max": 5.0})  # RunSpec(...) does not reroute
@@ -78,10 +83,10 @@ def test_kinds_of_names_route_weights_and_static_settings():
     nodes: int = 64
 
   planner = types.SimpleNamespace(defaults={"k1": 0.0}, settings=Knobs())
-  assert [kind_of(n, planner) for n in ("alpha", "r_e", "k1", "nodes", "gamma")] == [
+  assert [kind_of(n, planner) for n in ("r_max", "slam", "k1", "nodes", "gamma")] == [
       "param", "static", "weight", "setting", None]
-  assert is_static("r_e", planner) and is_static("nodes", planner)
-  assert not is_static("alpha", planner) and not is_static("k1", planner)
+  assert is_static("slam", planner) and is_static("nodes", planner)
+  assert not is_static("r_max", planner) and not is_static("k1", planner)
   bare = types.SimpleNamespace(defaults={})  # a planner with no static settings
   assert kind_of("nodes", bare) is None
 
@@ -145,11 +150,11 @@ def test_sweep_takes_the_run_settings_on_its_command_line(monkeypatch):
               "--k1", "0.2", "--chunk-epochs", "2", "--devices", "1", "--no-progress"])
   assert seen["plan_window"] == 0 and seen["path_capacity"] == 64 and seen["start"] == "1,1"
   assert seen["rate_interval"] == 0.5 and seen["chunk_epochs"] == 2
-  assert seen["params"] == {"alpha": 1.5} and seen["planner_params"] == {"k1": 0.2}
+  assert not seen["params"] and seen["planner_params"] == {"alpha": 1.5, "k1": 0.2}
 
 
 def test_a_sweeps_plan_window_reaches_its_static_config():
-  spec = sweeps.make_spec({"alpha": [1.0, 2.0]}, None, None, 0, [0], "open", "nearest_frontier",
+  spec = sweeps.make_spec({"fov": [3.0, 6.0]}, None, None, 0, [0], "open", "nearest_frontier",
                           RunSpec(res=0.5, max_steps=30, plan_window=24))
   made, resolved = schedule.make_schedule(spec, None, {}, None, 1)
   assert made.groups[0].sim_config["plan_window"] == 24 and resolved[0].config.plan_window == 24
@@ -204,8 +209,10 @@ def test_a_planners_text_setting_is_reachable_from_flags_toml_and_the_api(tmp_pa
     with pytest.raises(ConfigError, match=match):
       resolve(RunSpec(world="lab", planner="li2020", robots=1, max_steps=5,
                       planner_params=planner_params))
-  with pytest.raises(ConfigError, match=r"params\['alpha'\] must be a number"):
-    RunSpec(params={"alpha": "high"})
+  with pytest.raises(ConfigError, match=r"params\['r_max'\] must be a number"):
+    RunSpec(params={"r_max": "high"})
+  with pytest.raises(ConfigError, match=r"planner 'li2020': weight alpha must be a number"):
+    resolve(RunSpec.create(planner="li2020", params={"alpha": "high"}))
   assert cli.main(["run", "--planner", "li2020", "--alpha", "high", "--no-progress"]) == 2
 
 

@@ -70,8 +70,7 @@ def _just_outside(s: Setting) -> float | None:
 def test_validation_is_derived_from_the_declarations():
   """For every bounded traced parameter, a value at an open bound or past a closed one is
   refused by validate_params naming it, whatever its neighbours; NaN too."""
-  config = SimConfig(height=50, width=50, res=0.1, max_range_cells=200,
-                     max_update_radius_cells=50)
+  config = SimConfig(height=50, width=50, res=0.1, max_range_cells=200)
   base = Params(r_max=2.0, dt=0.4)
   validate_params(base, config)
   checked = 0

@@ -162,15 +162,16 @@ def test_li2020_plans_alike_in_both_strategies(rooms):
   finals = []
   for strategy in ("per_robot", "lockstep"):
     config = config_for(rooms.shape, rooms.res, params, max_steps=12, replan_every=4,
-                        pose_noise=True, strategy=strategy, planner="li2020",
-                        max_update_radius_cells=30)
+                        pose_noise=True, strategy=strategy,
+                        planner=get_planner("li2020").with_settings(max_update_radius_cells=30),
+                        planner_given=("max_update_radius_cells",))
     state = sim.reset_batch(config, world, params, keys)
     finals.append(sim.advance(config, world, params, state, 3)[0])
   assert int(np.asarray(finals[0].steps).min()) == 12
   assert_same_across_strategies(finals[0], finals[1])
 
 
-# The engine's own parameters, with li2020 (the planner that also reads the entropy map); every
+# The engine's own parameters and li2020's weights (its entropy map's among them); every
 # planner's weights alone are checked by tests/planners/test_conformance.py. The batch is
 # tests/test_sweep.py's (its SETTINGS, a chunk of 3 robots, the chunk's planning rounds): the
 # engine program that module compiles first is loaded from the suite's compilation cache, not
@@ -191,7 +192,7 @@ def test_changing_a_traced_parameter_does_not_retrace(planner):
   n_epochs = driver.chunk_epochs_for(config, None)
   advance(config, world, params, state, n_epochs=n_epochs)
   # All at once: any one of them compiled in as a constant would make this call retrace.
-  changes = {"v_max": 0.4, "r_max": 1.5, "alpha": 1.0, "l_free": -0.5}
+  changes = {"v_max": 0.4, "r_max": 1.5, "l_free": -0.5}
   changed = params.replace(**{name: jnp.full((3,), value, jnp.float32)
                               for name, value in changes.items()},
                            planner={name: value * 0.5 for name, value in params.planner.items()})

@@ -272,7 +272,7 @@ def test_toml_random_search_and_several_planners(reference, tmp_path):
   assert len(li) == 2 * 2 and len(nf) == 2 * 2  # 2 random points x 2 seeds for each planner
   assert li.alpha.between(1.0, 2.0).all() and li.k1.between(0.01, 0.3).all()
   assert li.alpha.nunique() == 2 and li.k1.nunique() == 2
-  assert nf.k1.isna().all() and sorted(nf.alpha.unique()) == sorted(li.alpha.unique())
+  assert nf.k1.isna().all() and nf.alpha.isna().all()  # li2020's weights, not nearest_frontier's
   assert episodes.robot.tolist() == list(range(8))
   assert result.timing["compiles"] <= 2  # one program per planner (li2020's may be cached)
   config = json.loads((tmp_path / "toml" / "config.json").read_text())

@@ -2,8 +2,8 @@
 
 A planner plans for ONE robot (the engine batches it with ``vmap``) and sees the belief, never
 the truth. The engine knows no paper: a planner declares what it needs when it registers (its
-traced weights, its static settings, whether it reads Li's entropy map, a per-robot memory,
-whether it commits to a goal, a per-step hook) and the engine provides exactly that.
+traced weights, its static settings and how the run sizes them, a per-robot memory, whether it
+commits to a goal, a per-step hook) and the engine provides exactly that.
 
 Two signatures:
 
@@ -45,8 +45,6 @@ class PlannerContext:
     dijkstra_tiles_after_rounds: the solver's ``tiles_after_rounds`` (0 = never).
     max_inflation_cells: bound of the robot radius in cells.
     max_steps: the episode's step budget (for capacity checks before compute).
-    r_e_cells: Li et al.'s effective radius R_e (Eq 5-6) in cells, the radius of the entropy
-      map's update region; 0 when the engine keeps no entropy map.
     settings: the planner's static settings (its registered frozen dataclass, resolved), or None.
     strategy: the engine's execution strategy (``SimConfig.strategy``, ``"per_robot"`` or
       ``"lockstep"``): a planner may shape its kernels by it, never its results.
@@ -60,7 +58,6 @@ class PlannerContext:
   dijkstra_tiles_after_rounds: int = 0
   max_inflation_cells: int = 3
   max_steps: int = 2000
-  r_e_cells: float = 0.0
   settings: Any = None
   strategy: str = "per_robot"
 
@@ -79,8 +76,6 @@ class BeliefView:
 
   Attributes:
     logodds: f32[H, W] occupancy belief.
-    entropy_map: f32[H, W] Li's smoothed entropy map I_e (Eq 3); None unless the planner
-      registered ``needs_entropy_map``.
     free, occupied, unknown: bool[H, W] belief classes.
     inflated: bool[H, W] cells within the robot radius of a believed-occupied cell.
     traversable: bool[H, W] free cells clear of occupied cells by the robot radius.
@@ -91,7 +86,6 @@ class BeliefView:
   """
 
   logodds: chex.Array
-  entropy_map: chex.Array
   free: chex.Array
   occupied: chex.Array
   unknown: chex.Array
@@ -107,11 +101,14 @@ class BeliefView:
 
 @pytrees.dataclass(frozen=True)
 class RobotView:
-  """The robot as it believes itself to be: estimated pose (m, rad), its cell, covariance Σ."""
+  """The robot as it believes itself to be: estimated pose (m, rad), its cell, covariance Σ,
+  and where it stands in cell units (the fraction of its cell included), or None where the
+  caller did not say."""
 
   pose: chex.Array  # f32[3]
   cell: chex.Array  # i32[2] (row, col)
   cov: chex.Array  # f32[3, 3]
+  position: Any = None  # f32[2] (row, col) in cells: ``cell`` is its floor
 
 
 @pytrees.dataclass(frozen=True)
@@ -168,16 +165,23 @@ class PlannerSpec:
       change recompiles; they may fix shapes), or None. A registered spec holds their defaults.
     validate: optional host-side check before compute,
       ``validate(weights: dict[str, np.ndarray], params, ctx) -> None``, raising ``ConfigError``.
-    needs_entropy_map: the planner reads Li et al.'s entropy map I_e (Eq 1-3); the engine keeps
-      it only for such planners.
+    size_settings: ``size_settings(settings, given, config, params, preset) -> settings`` for a
+      planner whose static settings the run sizes (a loop bound from the largest value of a
+      traced weight, a radius from the sensor): called by :func:`jaxplore.config.config_for`
+      with the sized :class:`~jaxplore.config.SimConfig`, the traced ``params`` (one value per
+      robot or a scalar), the preset's name (or None) and ``given``, the names of the settings
+      the user gave (to be left as they are). It refuses a bad value with ``ConfigError``.
     needs_pose_graph: the planner reads the robot's SLAM pose graph (``view.pose_graph``); the
       engine keeps one for such planners (for the others only when asked, for its metrics).
     init_memory: ``init_memory(ctx, params) -> memory`` for a planner with per-robot memory.
     commits: the robot drives to its chosen goal before the planner decides again (it replans
       only when its path is done or blocked, never every ``replan_every`` steps).
     step_hook: ``step_hook(ctx, params, memory, robot, logodds, moved) -> memory``, run after
-      every motion step of a running robot (after its scan is integrated), for memories that
-      grow while the robot moves; planners without one pay nothing.
+      each scan a running robot integrates into its belief ``logodds`` (its first at reset,
+      with ``moved`` true, then one every motion step; ``robot.position`` is set), for memories
+      that follow the belief or grow while the robot moves; planners without one pay nothing.
+      On a CPU the engine runs it for one robot after the other, their memories updated in
+      place (:func:`jaxplore.mapping.per_robot`).
     blacklist_on_arrival: the engine blacklists a goal once the robot has reached the end of
       the path to it (Ahmed's FD), so it is never chosen again.
     windowed: the planner picks the candidate with the smallest path cost over unit node costs
@@ -201,7 +205,7 @@ class PlannerSpec:
   summary: str = ""
   settings: Any = None
   validate: Callable | None = None
-  needs_entropy_map: bool = False
+  size_settings: Callable | None = None
   needs_pose_graph: bool = False
   init_memory: Callable | None = None
   commits: bool = False
@@ -213,7 +217,7 @@ class PlannerSpec:
 
   def _key(self) -> tuple:
     return (self.name, self.plan, tuple(sorted(self.defaults.items())), self.settings,
-            self.validate, self.needs_entropy_map, self.needs_pose_graph, self.init_memory,
+            self.validate, self.size_settings, self.needs_pose_graph, self.init_memory,
             self.commits, self.step_hook, self.blacklist_on_arrival, self.windowed, self.preset,
             self.memory_graph)
 
@@ -241,6 +245,15 @@ class PlannerSpec:
     if not overrides:
       return self
     return dataclasses.replace(self, settings=self.resolve_settings(overrides))
+
+  def changed_settings(self) -> frozenset[str]:
+    """The names of the static settings whose value is not their field's default (a user's,
+    where the settings were built with them)."""
+    if self.settings is None:
+      return frozenset()
+    return frozenset(f.name for f in dataclasses.fields(self.settings)
+                     if f.default is not dataclasses.MISSING
+                     and getattr(self.settings, f.name) != f.default)
 
   @property
   def has_memory(self) -> bool:
@@ -355,7 +368,7 @@ _REGISTRY: dict[str, PlannerSpec] = {}
 
 
 def planner(name: str, plan: PlanFn, defaults=None, summary: str = "", *, settings=None,
-            validate: Callable | None = None, needs_entropy_map: bool = False,
+            validate: Callable | None = None, size_settings: Callable | None = None,
             needs_pose_graph: bool = False, init_memory: Callable | None = None,
             commits: bool = False, step_hook: Callable | None = None,
             blacklist_on_arrival: bool = False, windowed: bool = False,
@@ -382,7 +395,7 @@ def planner(name: str, plan: PlanFn, defaults=None, summary: str = "", *, settin
     check_settings(name, settings)
   return PlannerSpec(
       name=name, plan=plan, defaults=dict(defaults or {}), weights=weights, summary=summary,
-      settings=settings, validate=validate, needs_entropy_map=needs_entropy_map,
+      settings=settings, validate=validate, size_settings=size_settings,
       needs_pose_graph=needs_pose_graph, init_memory=init_memory, commits=commits,
       step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival, windowed=windowed,
       preset=preset, memory_graph=memory_graph)

@@ -2,6 +2,10 @@
 information-based exploration path planning method for active simultaneous localization and
 mapping" (Algorithm 1).
 
+The planner keeps Li's smoothed entropy map ``I_e`` (Eq 1-3) in each robot's memory: after each
+scan the robot integrates, its step hook (:func:`update_entropy_map`) blends the cells within
+``R_u = α·R_e`` of the robot (Eq 7) toward their entropy in the belief (Eq 3).
+
 One planning round for one robot:
 
 1. Boundary features by a 3x3 box sum (Eq 4): ``B_e`` = traversable cells whose smoothed entropy
@@ -72,13 +76,17 @@ from jaxplore.errors import ConfigError, shown
 from jaxplore.graph.dijkstra import extract_path
 from jaxplore.graph.tree import nearest_ancestor, path_sums
 from jaxplore.planners import base
-from jaxplore.settings import setting
+from jaxplore.settings import LENGTH_LIMIT_M, check_length, setting
 
 
 @dataclasses.dataclass(frozen=True)
 class Weights:
   """Traced weights of ``li2020`` (``params.planner[name]``; sweeping them never recompiles)."""
 
+  entropy_k: float = setting(0.5, "Li et al. Eq 3: the smoothing k of the entropy map", ge=0,
+                             lt=1)
+  alpha: float = setting(1.5, "Li et al. Eq 7: the entropy map is updated within R_u = alpha * "
+                         "R_e of the robot", gt=0)
   k1: float = setting(0.2, "Eq 8: weight of edges into entropy boundaries B_e (k1 < k2)", ge=0,
                       lt=1)
   k2: float = setting(0.6, "Eq 8: weight of edges into grid-map boundaries B_g", gt=0, lt=1)
@@ -120,6 +128,13 @@ class Settings:
   """Static settings of ``li2020``.
 
   Attributes:
+    r_e: Li's effective radius ``R_e`` (Eq 5-6), m: the radius of the gain regions, and
+      ``α·R_e`` the entropy map's update radius. With a preset and unset, derived from the
+      lidar (:func:`effective_radius`, at most its range; :func:`size_settings`).
+    dpi_min: Eq 6's beam density ``R_e`` is derived at, beams per metre (0: one per cell).
+    max_update_radius_cells: static bound of the update radius ``R_u = α·R_e`` in cells (the
+      side of the window the step hook updates); unless given, sized from the largest ``α`` of
+      the batch (:func:`size_settings`).
     eq21: Eq 21's reading of the entropy a cell will have once observed, ``H'(c)`` (the gain of a
       cell is ``H(c) − H'(c)`` where positive, ``H`` = the entropy map ``I_e``): ``"sensor"``,
       ``H' = k·H(c) + (1−k)·H_obs`` with ``H_obs`` the entropy after one free observation (Eq 3
@@ -148,6 +163,15 @@ class Settings:
       sums on lab and intel, R_e 57 cells; not measured on a GPU).
   """
 
+  r_e: float = setting(0.75, "Li et al. Eq 5-6: the effective radius R_e (the entropy map's "
+                       "update radius is alpha * R_e, li2020's gain disc R_e); with a preset "
+                       "and unset: derived from the lidar", unit="m", static=True, gt=0)
+  dpi_min: float = setting(0.0, "Li et al. Eq 6: the beam density R_e is derived at (0: one "
+                           "beam per cell)", unit="beams/m", static=True, ge=0)
+  max_update_radius_cells: int = setting(30, "static bound of the entropy map's update radius "
+                                         "R_u = alpha * R_e in cells (a run sizes it from the "
+                                         "largest alpha unless given)", static=True, ge=1,
+                                         integer=True)
   eq21: str = setting("sensor", "Eq 21's reading of H'(c), the entropy of a cell once observed: "
                       "sensor (one observation's) or cell (its belief's now)", static=True,
                       choices=("sensor", "cell"))
@@ -160,11 +184,81 @@ class Settings:
 
 
 def init_memory(ctx, params):
-  """The progress timeout's memory: unknown cells at the last progress, metres driven since,
-  where the robot planned last (once it has), and whether the timeout ended the episode."""
-  return {"unknown": jnp.int32(ctx.height * ctx.width), "driven": jnp.float32(0.0),
+  """A robot's memory: the entropy map ``I_e`` (f32[H, W], every cell unknown: ln 2), and the
+  progress timeout's unknown cells at the last progress, metres driven since, where the robot
+  planned last (once it has), and whether the timeout ended the episode."""
+  return {"entropy_map": jnp.full((ctx.height, ctx.width), mapping.LN2, jnp.float32),
+          "unknown": jnp.int32(ctx.height * ctx.width), "driven": jnp.float32(0.0),
           "xy": jnp.zeros((2,), jnp.float32), "planned": jnp.bool_(False),
           "stuck": jnp.bool_(False)}
+
+
+def r_e_cells(ctx) -> float:
+  """R_e in cells (static)."""
+  return ctx.settings.r_e / ctx.res
+
+
+def update_entropy_map(ctx, params, memory, robot: base.RobotView, logodds, moved):
+  """The step hook: Eq 3 within ``R_u = α·R_e`` of the robot after the scan just integrated
+  (:func:`jaxplore.mapping.update_entropy_map`); a robot that did not move updates no cell but,
+  at most, the one whose centre it stands on."""
+  weights = params.planner
+  settings = ctx.settings
+  radius = jnp.where(moved, weights["alpha"] * settings.r_e / ctx.res, 0.0)
+  entropy_map = mapping.update_entropy_map(memory["entropy_map"], logodds, robot.position,
+                                           radius, weights["entropy_k"],
+                                           2 * settings.max_update_radius_cells + 3)
+  return dict(memory, entropy_map=entropy_map)
+
+
+def effective_radius(res: float, fov: float, n_beams: int, dpi_min: float | None = None) -> float:
+  """Li et al.'s effective radius R_e (Eq 5-6), m: the largest distance D at which the scanner
+  density ``S_dpi = 1 / (D·tan θ)`` stays above ``dpi_min``, i.e. ``1 / (dpi_min·tan θ)``.
+
+  Args:
+    res: metres per cell; ``dpi_min`` defaults to one beam per cell, ``1 / res``.
+    fov, n_beams: the lidar's field of view (rad) and beam count; θ is the angle between two
+      adjacent beams (:func:`jaxplore.sensor.beam_angles`' spacing).
+    dpi_min: Eq 6's minimum density, beams per metre.
+  """
+  if n_beams < 2 or not fov > 0:
+    raise ConfigError(f"R_e needs at least 2 beams over a positive field of view, got {n_beams}, "
+                      f"{fov}")
+  step = fov / n_beams if fov >= 2 * math.pi - 1e-6 else fov / (n_beams - 1)
+  spacing = res if dpi_min is None else 1.0 / dpi_min
+  if not spacing > 0:
+    raise ConfigError(f"dpi_min must be > 0 beams per metre, got {dpi_min}")
+  return spacing / math.tan(step)
+
+
+def size_settings(settings: Settings, given, config, params, preset) -> Settings:
+  """R_e and the bound of the update radius for a run (``PlannerSpec.size_settings``), but for
+  those the user gave.
+
+  With a ``preset`` and ``r_e`` not given, R_e is derived from the lidar by Eq 5-6
+  (:func:`effective_radius`, one beam per cell unless ``dpi_min`` is given; the widest ``fov``
+  of ``params``), at most the lidar's range ``r_max`` (a scan sees nothing beyond it, however
+  dense its beams would be there, as on coarse grids). ``max_update_radius_cells`` is sized
+  from the largest ``alpha`` of the batch.
+  """
+  limit = max(math.hypot(config.height, config.width) * config.res, LENGTH_LIMIT_M)
+  alpha = params.planner.get("alpha", DEFAULTS["alpha"])
+  check_length("alpha", alpha, math.inf, "")
+  r_e = settings.r_e
+  if preset is not None and "r_e" not in given:
+    r_e = min(effective_radius(config.res, float(np.max(np.asarray(params.fov))), config.n_beams,
+                               settings.dpi_min or None),
+              float(np.max(np.asarray(params.r_max))))
+    check_length("r_e", r_e, limit, "the gain kernels",
+                 "R_e derived from fov, the beam count and dpi_min by Eq 5-6,")
+  else:
+    check_length("r_e", r_e, limit, "the gain kernels (R_e)")
+  r_u = float(np.max(np.asarray(alpha))) * r_e
+  check_length("alpha", r_u, limit, "the entropy-map update", "R_u = alpha * r_e")
+  bound = settings.max_update_radius_cells
+  if "max_update_radius_cells" not in given:
+    bound = max(1, math.ceil(r_u / config.res - 1e-6))
+  return dataclasses.replace(settings, r_e=r_e, max_update_radius_cells=bound)
 
 GEOMETRY = ("length", "a", "b", "bx", "by", "bxx", "byy", "bxy")
 CHANNELS = ("gain", "reexplore") + GEOMETRY
@@ -176,11 +270,18 @@ def validate(weights, params, ctx):
   if np.any(bad):
     pairs = [f"({a:g}, {b:g})" for a, b in zip(k1[bad].tolist(), k2[bad].tolist())]
     raise ConfigError(f"li2020 needs 0 <= k1 < k2 < 1 (Eq 8), got (k1, k2) = {shown(pairs)}")
+  settings = ctx.settings
+  max_ru = settings.max_update_radius_cells * ctx.res
+  r_u = np.asarray(weights["alpha"], np.float64) * settings.r_e
+  if np.any(r_u > max_ru + 1e-6):
+    raise ConfigError(f"planner 'li2020': weight alpha must be such that alpha * r_e <= "
+                      f"max_update_radius_cells * res = {max_ru:.3g} m, got "
+                      f"{shown(np.asarray(weights['alpha']), r_u > max_ru + 1e-6)}")
 
 
-def boundaries(view: base.BeliefView, tau_e):
-  """(B_e, B_g) of Eq 4 with a 3x3 kernel of ones (n = 3)."""
-  high = view.entropy_map > tau_e
+def boundaries(view: base.BeliefView, entropy_map, tau_e):
+  """(B_e, B_g) of Eq 4 with a 3x3 kernel of ones (n = 3); ``entropy_map``: I_e, f32[H, W]."""
+  high = entropy_map > tau_e
   b_e = view.traversable & high & (mapping.neighbour_count(high, border=True) < 9)
   b_g = view.traversable & mapping.any_neighbour(view.inflated & ~view.traversable, border=True)
   return b_e, b_g
@@ -240,18 +341,21 @@ def observable_cells(view: base.BeliefView, radius: float):
   return ~view.unknown | reach
 
 
-def cell_gains(view: base.BeliefView, params, h0, radius: float, eq21: str = "sensor"):
+def cell_gains(view: base.BeliefView, entropy_map, params, h0, radius: float,
+               eq21: str = "sensor"):
   """Per-cell expected entropy decrease (Eq 20–21, read as a decrease) and re-explore term (Eq 22).
 
-  The gain of a cell is ``H(c) − H'(c)`` where positive, ``H`` the entropy map ``I_e``, with
+  The gain of a cell is ``H(c) − H'(c)`` where positive, ``H`` the entropy map ``I_e``
+  (``entropy_map``, f32[H, W]), with
   Eq 21's ``H'`` read as ``k·H(c) + (1−k)·H_obs`` (``eq21="sensor"``; ``H_obs`` the entropy of a
   cell after one free observation), or as ``Ĥ(P(c))``, the cell's entropy in the belief
   (``eq21="cell"``); see :class:`Settings`.
   """
-  h = view.entropy_map
+  h = entropy_map
   if eq21 == "sensor":
     h_obs = mapping.entropy_of_logodds(params.l_free)
-    after = params.entropy_k * h + (1.0 - params.entropy_k) * h_obs
+    k = params.planner["entropy_k"]
+    after = k * h + (1.0 - k) * h_obs
   elif eq21 == "cell":
     after = mapping.entropy_of_logodds(view.logodds)
   else:
@@ -812,7 +916,7 @@ def path_gains(config, view, robot, pred, gains):
   pred_flat = pred.ravel()
   idx = jnp.arange(h * w, dtype=jnp.int32)
   parent, has_parent, d_row, d_col, root = _tree_steps(config, robot, pred)
-  radius = config.r_e_cells
+  radius = r_e_cells(config)
   settings = config.settings
   if settings.region in ("visible", "beams"):
     # Each cell once per path, counted where it enters the region of a waypoint (seen from that
@@ -866,7 +970,8 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   weights = params.planner
   settings = config.settings
   h, w = config.height, config.width
-  b_e, b_g = boundaries(view, weights["tau_e"])
+  entropy_map = memory["entropy_map"]
+  b_e, b_g = boundaries(view, entropy_map, weights["tau_e"])
   sp = config.shortest_paths(edge_weights(view, b_e, b_g, weights["k1"], weights["k2"]),
                              robot.cell)
   reachable = jnp.isfinite(sp.dist).ravel()
@@ -887,7 +992,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   # (~40 % of a plan's time) is skipped by the plans that explore (108 of 113 in an episode of
   # 8 robots on lab); under vmap a chunk runs it if any of its robots needs it (a batched
   # lax.cond would run it for every chunk). The results are those of one two-channel pass.
-  gains = cell_gains(view, params, weights["h0"], config.r_e_cells, settings.eq21)
+  gains = cell_gains(view, entropy_map, params, weights["h0"], r_e_cells(config), settings.eq21)
   # A path's gain is what its road-mark points add to the region of P_0, where the robot stands
   # (see the comment before the scores below): its Eq 20 sum less the root's.
   added = lambda gain: gain - gain[root]
@@ -926,7 +1031,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   fallback = reductions.argmax(fallback_score, w)
   can_fallback = jnp.isfinite(fallback_score[fallback]) & (frontier_left | needs_reloc)
   converged = ((weights["e_min"] > 0) &
-               (average_observable_entropy(view, config.r_e_cells) < weights["e_min"]))
+               (average_observable_entropy(view, r_e_cells(config)) < weights["e_min"]))
 
   # Progress timeout: metres driven (straight lines between plans) since the belief last gained
   # a known cell.
@@ -935,7 +1040,8 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   progressed = unknown < memory["unknown"]
   driven = jnp.where(progressed, 0.0, memory["driven"] + step)
   stuck = (weights["progress_m"] > 0) & (driven > weights["progress_m"])
-  memory = {"unknown": jnp.minimum(unknown, memory["unknown"]), "driven": driven,
+  memory = {"entropy_map": entropy_map, "unknown": jnp.minimum(unknown, memory["unknown"]),
+            "driven": driven,
             "xy": robot.pose[:2].astype(jnp.float32), "planned": jnp.bool_(True),
             "stuck": memory["stuck"] | stuck}
 
@@ -954,5 +1060,6 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
 
 LI2020 = base.planner(
     "li2020", plan_li2020, defaults=Weights, settings=Settings(), validate=validate,
-    needs_entropy_map=True, init_memory=init_memory, commits=True,
+    size_settings=size_settings, init_memory=init_memory, step_hook=update_entropy_map,
+    commits=True,
     summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")

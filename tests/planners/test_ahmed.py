@@ -268,7 +268,7 @@ def test_candidates_filters_and_eq_9_from_their_parts():
   robot = base.RobotView(pose=jnp.asarray([0.65, 0.55, 0.0]), cell=jnp.asarray([5, 6], jnp.int32),
                          cov=jnp.eye(3))
   graph = posegraph.init(robot.pose, 16, 8)
-  view = base.BeliefView(logodds=jnp.asarray(logodds), entropy_map=None, free=free, occupied=occ,
+  view = base.BeliefView(logodds=jnp.asarray(logodds), free=free, occupied=occ,
                          unknown=unk, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ),
                          blacklist=jnp.zeros((h, w), bool), pose_graph=graph)

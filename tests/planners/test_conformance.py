@@ -35,21 +35,20 @@ def belief_logodds():
 
 def context(spec):
   return base.PlannerContext(height=H, width=W, res=0.1, path_capacity=L, max_inflation_cells=2,
-                             max_steps=400, r_e_cells=3.0 if spec.needs_entropy_map else 0.0,
-                             settings=spec.settings)
+                             max_steps=400, settings=spec.settings)
 
 
 def view_and_robot(spec, params, cell, theta):
   logodds = jnp.asarray(belief_logodds())
   free, occupied, unknown = mapping.classify(logodds, params)
   inflated = mapping.inflate(occupied, params.r_robot / 0.1, 2)
-  entropy = mapping.entropy_of_logodds(logodds) if spec.needs_entropy_map else None
   robot = base.RobotView(pose=jnp.asarray([cell[1] * 0.1 + 0.05, cell[0] * 0.1 + 0.05, theta],
                                           jnp.float32),
-                         cell=jnp.asarray(cell, jnp.int32), cov=jnp.eye(3, dtype=jnp.float32) * 1e-4)
+                         cell=jnp.asarray(cell, jnp.int32), cov=jnp.eye(3, dtype=jnp.float32) * 1e-4,
+                         position=jnp.asarray(cell, jnp.float32) + 0.5)
   # A pose graph of one keyframe at the robot, for planners that read one.
   graph = posegraph.init(robot.pose, 16, 8) if spec.needs_pose_graph else None
-  view = base.BeliefView(logodds=logodds, entropy_map=entropy, free=free, occupied=occupied,
+  view = base.BeliefView(logodds=logodds, free=free, occupied=occupied,
                          unknown=unknown, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unknown, occupied),
                          blacklist=jnp.zeros((H, W), bool), pose_graph=graph)
@@ -65,6 +64,8 @@ def one_plan(spec, ctx):
   def fn(params, key, cell, theta):
     view, robot = view_and_robot(spec, params, cell, theta)
     memory = spec.initial_memory(ctx, params)
+    if spec.step_hook is not None:  # the reset's first scan (li2020: its entropy map)
+      memory = spec.step_hook(ctx, params, memory, robot, view.logodds, jnp.bool_(True))
     return spec.propose(ctx, view, robot, params, key, memory)
   return fn
 

@@ -38,7 +38,7 @@ def make_view(state, params, config):
   l = np.where(state == 0, -3.0, np.where(state == 1, 3.0, 0.0)).astype(np.float32)
   free, occ, unk = mapping.classify(jnp.asarray(l), params)
   inflated = mapping.inflate(occ, params.r_robot / config.res, config.max_inflation_cells)
-  return base.BeliefView(logodds=jnp.asarray(l), entropy_map=jnp.zeros(l.shape), free=free, occupied=occ,
+  return base.BeliefView(logodds=jnp.asarray(l), free=free, occupied=occ,
                          unknown=unk, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros(l.shape, bool))
 

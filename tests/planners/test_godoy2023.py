@@ -42,7 +42,7 @@ def make_view(state, blacklist=None, params=PARAMS, config=CONFIG):
   inflated = mapping.inflate(occ, params.r_robot / config.res, config.max_inflation_cells)
   if blacklist is None:
     blacklist = np.zeros(state.shape, bool)
-  return base.BeliefView(logodds=jnp.asarray(l), entropy_map=jnp.zeros(l.shape), free=free,
+  return base.BeliefView(logodds=jnp.asarray(l), free=free,
                          occupied=occ, unknown=unk, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ), blacklist=jnp.asarray(blacklist))
 

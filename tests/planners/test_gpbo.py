@@ -44,7 +44,7 @@ def make_view(state, params=PARAMS):
   l = np.where(state == FREE, -3.0, np.where(state == OCC, 3.0, 0.0)).astype(np.float32)
   free, occ, unk = mapping.classify(jnp.asarray(l), params)
   inflated = mapping.inflate(occ, params.r_robot / RES, CTX.max_inflation_cells)
-  return base.BeliefView(logodds=jnp.asarray(l), entropy_map=None, free=free, occupied=occ, unknown=unk,
+  return base.BeliefView(logodds=jnp.asarray(l), free=free, occupied=occ, unknown=unk,
                          inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros((H, W), bool))
 

@@ -24,14 +24,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
 from bench_visible_gains import visible_gains_one_loop  # noqa: E402  (visible_gains at 0c98c96)
 
 H, W = 26, 34
+# R_e = 3 cells (3 * 0.1 m / 0.1 m: 3.0000000000000004, the nearest a float gets).
+SETTINGS = li2020.Settings(r_e=3 * 0.1)
 CONFIG = base.PlannerContext(height=H, width=W, res=0.1, max_inflation_cells=2, path_capacity=128,
-                             r_e_cells=3.0, settings=li2020.Settings())
+                             settings=SETTINGS)
 
 
 # Jitted once per static context and shared by the tests (compiles dominate this file's time).
 TREE = jax.jit(li2020.tree_quantities, static_argnums=0)
 PLAN = jax.jit(li2020.plan_li2020, static_argnums=0)
-ROAD_MARKS = dataclasses.replace(CONFIG, settings=li2020.Settings(road_mark_m=0.5))
+ROAD_MARKS = dataclasses.replace(CONFIG, settings=dataclasses.replace(SETTINGS, road_mark_m=0.5))
 
 
 def weights(**kw):
@@ -56,9 +58,14 @@ def belief(seed=0):
 def make_view(l, entropy, params):
   free, occ, unk = mapping.classify(jnp.asarray(l), params)
   inflated = mapping.inflate(occ, params.r_robot / CONFIG.res, CONFIG.max_inflation_cells)
-  return base.BeliefView(logodds=jnp.asarray(l), entropy_map=jnp.asarray(entropy), free=free, occupied=occ,
+  return base.BeliefView(logodds=jnp.asarray(l), free=free, occupied=occ,
                          unknown=unk, inflated=inflated, traversable=free & ~inflated,
                          frontier=mapping.frontier(free, unk, occ), blacklist=jnp.zeros((H, W), bool))
+
+
+def memory_for(ctx, params, entropy):
+  """A robot's memory whose entropy map is ``entropy`` (what li2020 plans on)."""
+  return dict(li2020.init_memory(ctx, params), entropy_map=jnp.asarray(entropy))
 
 
 def params_for(**planner):
@@ -75,7 +82,7 @@ def test_boundaries_match_numpy_reading_of_eq4():
   _, l, entropy = belief()
   view = make_view(l, entropy, params)
   tau = 0.4
-  b_e, b_g = li2020.boundaries(view, jnp.float32(tau))
+  b_e, b_g = li2020.boundaries(view, jnp.asarray(entropy), jnp.float32(tau))
   trav = np.asarray(view.traversable)
   high = entropy > tau
   # conv of `high` with a 3x3 kernel of ones (outside counts as high: no boundary at the border)
@@ -110,7 +117,7 @@ def test_weighted_dijkstra_matches_scipy_with_zero_weights(k1):
   params = params_for()
   _, l, entropy = belief(1)
   view = make_view(l, entropy, params)
-  b_e, b_g = li2020.boundaries(view, jnp.float32(0.4))
+  b_e, b_g = li2020.boundaries(view, jnp.asarray(entropy), jnp.float32(0.4))
   cost = np.asarray(li2020.edge_weights(view, b_e, b_g, jnp.float32(k1), jnp.float32(0.6)))
   if k1 == 0.0:
     assert np.any(cost == 0.0)
@@ -150,14 +157,14 @@ def test_tree_covariance_matches_numpy_loop_of_eq17(road_mark_m):
   params = params.replace(sigma_d=jnp.float32(0.5), sigma_phi=jnp.float32(0.3))
   _, l, entropy = belief(2)
   view = make_view(l, entropy, params)
-  b_e, b_g = li2020.boundaries(view, jnp.float32(0.4))
+  b_e, b_g = li2020.boundaries(view, jnp.asarray(entropy), jnp.float32(0.4))
   cost = li2020.edge_weights(view, b_e, b_g, jnp.float32(0.2), jnp.float32(0.6))
   robot = robot_at((5, 15), theta=0.7, cov=2e-3)
   sp = shortest_paths(cost, robot.cell)
-  ctx = ROAD_MARKS if road_mark_m else dataclasses.replace(CONFIG, settings=li2020.Settings(road_mark_m=0.0))
+  ctx = ROAD_MARKS if road_mark_m else dataclasses.replace(CONFIG, settings=dataclasses.replace(SETTINGS, road_mark_m=0.0))
   spacing = li2020.road_mark_cells(ctx)
   assert spacing == (1 if road_mark_m == 0 else 5)
-  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
+  gains = li2020.cell_gains(view, jnp.asarray(entropy), params, jnp.float32(math.log(2)), li2020.r_e_cells(CONFIG))
   sums, cov, _ = TREE(ctx, view, robot, params, sp.pred, gains)
   rng = np.random.default_rng(0)
   reachable = np.argwhere(np.isfinite(np.asarray(sp.dist)))
@@ -198,11 +205,11 @@ def test_tree_gain_equals_exact_union_on_open_ground():
   cost = jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32)
   robot = robot_at((12, 15))
   sp = shortest_paths(cost, robot.cell)
-  gains = li2020.cell_gains(view, params, jnp.float32(math.log(2)), CONFIG.r_e_cells)
+  gains = li2020.cell_gains(view, jnp.asarray(entropy), params, jnp.float32(math.log(2)), li2020.r_e_cells(CONFIG))
   sums, _, _ = TREE(CONFIG, view, robot, params, sp.pred, gains)
   for goal in [(12, 25), (4, 15), (20, 5), (5, 28)]:
     cells, n = extract_path(sp.pred, jnp.asarray(goal, jnp.int32), CONFIG.path_capacity)
-    exact = float(li2020.path_gain(gains[0], cells, n, CONFIG.r_e_cells))
+    exact = float(li2020.path_gain(gains[0], cells, n, li2020.r_e_cells(CONFIG)))
     assert float(sums[goal[0] * W + goal[1], 0]) == pytest.approx(exact, rel=1e-4)
 
 
@@ -215,7 +222,7 @@ def test_plan_is_safe_and_within_the_covariance_limit(transform, select):
   state, l, entropy = belief(5)
   view = make_view(l, entropy, params)
   robot = robot_at((5, 15), cov=1e-3)
-  memory = li2020.init_memory(CONFIG, params)
+  memory = memory_for(CONFIG, params, entropy)
   if transform is jax.jit:
     plan, _ = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0), memory)
   else:
@@ -254,7 +261,7 @@ def test_the_robots_own_disc_reads_nothing_across_the_top_and_left_borders(regio
   gains[:, -1, :] = 1.0  # only the last row and column gain: a disc at (1, 1) never reaches them
   gains[:, :, -1] = 1.0
   sp = shortest_paths(jnp.where(view.traversable, 1.0, jnp.inf).astype(jnp.float32), robot.cell)
-  ctx = dataclasses.replace(ROAD_MARKS, settings=li2020.Settings(road_mark_m=0.5, region=region))
+  ctx = dataclasses.replace(ROAD_MARKS, settings=dataclasses.replace(SETTINGS, road_mark_m=0.5, region=region))
   sums, _, _ = TREE(ctx, view, robot, params, sp.pred, jnp.asarray(gains))
   assert float(sums[1 * W + 1, 0]) == 0.0 and float(sums[1 * W + 1, 1]) == 0.0
 
@@ -266,9 +273,9 @@ def test_both_readings_of_eq21_match_their_formulas(eq21):
   l = rng.choice(np.array([-3.0, -1.0, 1.0, 3.0], np.float32), size=(H, W))  # every cell known
   entropy = rng.uniform(0.0, math.log(2), (H, W)).astype(np.float32)
   view = make_view(l, entropy, params)
-  gain, reexplore = np.asarray(li2020.cell_gains(view, params, jnp.float32(0.6), 3.0, eq21))
+  gain, reexplore = np.asarray(li2020.cell_gains(view, jnp.asarray(entropy), params, jnp.float32(0.6), 3.0, eq21))
   h_cell = lambda x: -(x * np.log(x) + (1 - x) * np.log(1 - x))
-  k = float(params.entropy_k)
+  k = float(params.planner["entropy_k"])
   if eq21 == "sensor":  # H' = k·H + (1−k)·H_obs, H_obs the entropy after one free observation
     after = k * entropy + (1 - k) * h_cell(1 / (1 + math.exp(1.0)))
   else:  # H' = Ĥ(P(c))
@@ -291,8 +298,8 @@ def test_entropy_left_only_where_the_robot_stands_is_no_paths_gain():
   entropy[5, 15] = math.log(2)  # only the robot's own cell has entropy to lose
   view = make_view(l, entropy, params)
   plan, _ = PLAN(CONFIG, view, robot_at((5, 15)), params, jax.random.PRNGKey(0),
-                 li2020.init_memory(CONFIG, params))
-  gain = np.asarray(li2020.cell_gains(view, params, jnp.float32(math.log(2)), 3.0))[0]
+                 memory_for(CONFIG, params, entropy))
+  gain = np.asarray(li2020.cell_gains(view, jnp.asarray(entropy), params, jnp.float32(math.log(2)), 3.0))[0]
   assert gain[5, 15] > 0 and gain.sum() == gain[5, 15]
   assert not bool(plan.valid) and int(plan.length) == 0
 
@@ -333,13 +340,13 @@ def test_gain_per_metre_weighs_what_a_path_adds_to_the_robots_own_region():
   robot = robot_at((12, 5), theta=0.0)
   l, entropy = open_room((12, 5), 3.0)
   view = make_view(l, entropy, params)
-  gain = np.asarray(li2020.cell_gains(view, params, jnp.float32(math.log(2)), 3.0))[0]
+  gain = np.asarray(li2020.cell_gains(view, jnp.asarray(entropy), params, jnp.float32(math.log(2)), 3.0))[0]
   own = numpy_union_gain(gain, [(12, 5)], 3.0)
   assert own > 1.0  # a one-cell path used to score more than 10 nats per metre
   for step in mapping.NEIGHBOURS_8:  # what each one-cell path adds: nothing
     assert numpy_union_gain(gain, [(12, 5), (12 + step[0], 5 + step[1])], 3.0) == own
   plan, _ = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0),
-                 li2020.init_memory(CONFIG, params))
+                 memory_for(CONFIG, params, entropy))
   n = int(plan.length)
   cells = np.asarray(plan.waypoints)[:n]
   assert bool(plan.valid) and n >= 15 and cells[-1][1] >= 20  # toward the unknown space
@@ -365,7 +372,7 @@ def test_entropy_left_only_where_the_robot_stands_leads_to_the_reexplore_fallbac
   entropy[20:24, 10:16] = 0.0  # the well-mapped patch, the only cells below h0
   view = make_view(l, entropy, params)
   plan, _ = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0),
-                 li2020.init_memory(CONFIG, params))
+                 memory_for(CONFIG, params, entropy))
   n = int(plan.length)
   cells = np.asarray(plan.waypoints)[:n]
   assert bool(plan.valid) and n >= 10
@@ -375,7 +382,7 @@ def test_entropy_left_only_where_the_robot_stands_leads_to_the_reexplore_fallbac
   covs = numpy_cov_along(cells, 0.0, np.asarray(robot.cov), CONFIG.res, 1.0, 1.0,
                          li2020.road_mark_cells(CONFIG))
   assert np.linalg.det(covs[-1]) > det_max
-  reexplore = np.asarray(li2020.cell_gains(view, params, jnp.float32(0.1), 3.0))[1]
+  reexplore = np.asarray(li2020.cell_gains(view, jnp.asarray(entropy), params, jnp.float32(0.1), 3.0))[1]
   np.testing.assert_allclose(float(plan.gain), numpy_union_gain(reexplore, cells, 3.0), rtol=1e-4)
 
 
@@ -383,7 +390,7 @@ def test_the_progress_timeout_ends_a_robot_that_drives_without_mapping_anything(
   params = params_for(progress_m=20.0)
   _, l, entropy = belief(9)
   view = make_view(l, entropy, params)
-  memory = li2020.init_memory(CONFIG, params)
+  memory = memory_for(CONFIG, params, entropy)
   valid = []
   for i in range(9):  # 3 m between plans, the belief never changes
     robot = robot_at((5, 15)).replace(pose=jnp.asarray([3.0 * (i % 2), 0.0, 0.3], jnp.float32))
@@ -417,7 +424,7 @@ def test_two_pockets_behind_slits_make_a_two_cycle_that_the_progress_timeout_end
   entropy = np.where(l == 0.0, math.log(2), 0.05).astype(np.float32)
   view = make_view(l, entropy, params)
   assert not np.asarray(view.traversable)[9, [5, 28]].any()  # the robot cannot pass a slit
-  memory = li2020.init_memory(CONFIG, params)
+  memory = memory_for(CONFIG, params, entropy)
   cell, sides, driven = (12, 5), [], 0.0
   for i in range(30):
     pose = jnp.asarray([(cell[1] + 0.5) * CONFIG.res, (cell[0] + 0.5) * CONFIG.res, 0.0], jnp.float32)
@@ -608,9 +615,9 @@ def test_the_planner_takes_the_visible_gain_blocks_of_the_engines_strategy(monke
   state, l, entropy = belief(5)
   view = make_view(l, entropy, params)
   for strategy in ("per_robot", "lockstep"):
-    ctx = dataclasses.replace(CONFIG, strategy=strategy, settings=li2020.Settings(region=region))
+    ctx = dataclasses.replace(CONFIG, strategy=strategy, settings=dataclasses.replace(SETTINGS, region=region))
     jax.eval_shape(lambda: li2020.plan_li2020(ctx, view, robot_at((5, 15)), params,
-                                              jax.random.PRNGKey(0), li2020.init_memory(ctx, params)))
+                                              jax.random.PRNGKey(0), memory_for(ctx, params, entropy)))
   assert blocks == [li2020.VISIBLE_BLOCK["per_robot"], li2020.VISIBLE_BLOCK["lockstep"]]
   assert blocks[0] != blocks[1]
 
@@ -717,9 +724,9 @@ def test_entropy_behind_a_known_wall_makes_the_disc_region_cycle_and_not_the_vis
   view = make_view(l, entropy, params)
   runs = {}
   for region in ("disc", "visible"):
-    ctx = dataclasses.replace(CONFIG, r_e_cells=5.0, settings=li2020.Settings(region=region))
+    ctx = dataclasses.replace(CONFIG, settings=dataclasses.replace(SETTINGS, r_e=0.5, region=region))
     plan_fn = functools.partial(PLAN, ctx)
-    memory = li2020.init_memory(ctx, params)
+    memory = memory_for(ctx, params, entropy)
     cell, goals = (12, 6), []
     for i in range(12):
       pose = jnp.asarray([(cell[1] + 0.5) * ctx.res, (cell[0] + 0.5) * ctx.res, 0.0], jnp.float32)
