@@ -288,7 +288,7 @@ def test_toml_random_search_and_several_planners(reference, tmp_path):
     ("gird = 1", "unknown key 'gird'"),
     ("samples = 4", "unknown key 'samples'.*\\[random\\]"),
     ("[grid]\nalpha = []", "sweep grid for 'alpha' is empty"),
-    ("[grid]\nalpha = ['a']", "must be a number"),
+    ("[grid]\nfov = ['a']", "must be a number"),
     ("[random]\nalpha = {low = 1, high = 2}", "samples"),
     ("[random]\nsamples = 2\nalpha = {low = 1, hi = 2}", "unknown key.*'hi'"),
     ("[random]\nsamples = 2\nk1 = {low = 0, high = 1, log = true}", "log range needs low > 0"),
