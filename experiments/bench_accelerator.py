@@ -140,16 +140,18 @@ def peak_device_bytes() -> int | None:
   return stats.get("peak_bytes_in_use")
 
 
-def time_setting(grid, label: str, strategy: str, robots: int, args, keep: dict | None = None
-                 ) -> dict:
+def time_setting(grid, label: str, strategy: str, robots: int, args, keep: dict | None = None,
+                 adjust=None) -> dict:
   """Resolve, reset, compile and time one (setting, strategy, batch); one result row (and the
-  final state in ``keep["state"]``, when ``keep`` is given)."""
+  final state in ``keep["state"]``, when ``keep`` is given). ``adjust``: a function of the
+  resolved :class:`jaxplore.config.SimConfig` returning the one to run (a variant of the engine's
+  settings, ``bench_lockstep_variants.py``), or None."""
   _, planner, preset = SETTINGS[label]
   steps = args.steps
   spec = RunSpec(world=grid, planner=planner, robots=robots, seed=args.seed, preset=preset,
                  max_steps=steps + 4 * args.chunk_steps, strategy=strategy)
   resolved = resolve(spec)
-  config = resolved.config
+  config = resolved.config if adjust is None else adjust(resolved.config)
   n_dev = driver.shard_count(robots, driver.local_devices(args.devices))
   row = dict(setting=label, planner=planner, grid=f"{config.height}x{config.width}",
              strategy=config.strategy, robots=robots, devices=n_dev)

@@ -98,6 +98,25 @@ class SimConfig:
       one (or ``plan_chunk``) at a time through the irregular stages, ``"lockstep"`` runs each
       stage as one kernel over the whole batch; ``"auto"`` (the default) is resolved on
       construction by :func:`resolve_strategy` from the default JAX backend.
+    lockstep_min_chunk: under ``lockstep``, the fewest robots a planning round takes together
+      (:func:`jaxplore.planning.lockstep_plan_chunk`).
+    lockstep_small_chunks: under ``lockstep``, the smaller chunks a whole-grid round takes
+      instead of its own when one holds every robot that needs a plan (a ladder of factor 4;
+      ``()`` = always the round's own chunk; :func:`jaxplore.planning.plan_where_needed`).
+    lockstep_leftovers_by_need: under ``lockstep``, the whole-grid round after a window (the
+      plans the window could not certify) takes a small chunk by need as well; False: always
+      chunks of ``lockstep_min_chunk``.
+    lockstep_whole_grid_update: under ``lockstep``, a scan updates the robot's whole belief grid
+      at once; False: a loop over the tiles it observed, as ``per_robot`` does
+      (:func:`jaxplore.mapping.integrate_observation`).
+    observation_dtype: the dtype of a scan's observation buffer
+      (:func:`jaxplore.sensor.empty_observation`): ``"int8"`` or ``"int32"``.
+
+    The ``lockstep_*`` fields and ``observation_dtype`` are tuning choices of the engine whose
+    defaults won or lost on measurements (``experiments/bench_lockstep_variants.py`` compares
+    them; its numbers are in ``experiments/results/bench_lockstep_variants_gpu.md``); no value
+    changes a result, but for ``lockstep_whole_grid_update``, which sums the map's entropy
+    change in another order.
   """
 
   height: int
@@ -154,6 +173,11 @@ class SimConfig:
                                 "the oracle)", owner="planning", static=True, ge=-1,
                                 integer=True)
   strategy: str = "auto"
+  lockstep_min_chunk: int = 64
+  lockstep_small_chunks: tuple[int, ...] = (4, 16, 64, 256, 1024, 4096)
+  lockstep_leftovers_by_need: bool = True
+  lockstep_whole_grid_update: bool = True
+  observation_dtype: str = "int8"
 
   def __post_init__(self):
     from jaxplore.planners import get_planner  # the planners import this module
@@ -162,7 +186,7 @@ class SimConfig:
       raise ConfigError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
     object.__setattr__(self, "strategy", resolve_strategy(self.strategy))
     for name in ("height", "width", "n_beams", "max_range_cells", "path_capacity", "replan_every",
-                 "max_steps", "dijkstra_max_sweeps", "plan_chunk"):
+                 "max_steps", "dijkstra_max_sweeps", "plan_chunk", "lockstep_min_chunk"):
       value = getattr(self, name)
       if not isinstance(value, (int, np.integer)) or value < 1:
         raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -175,6 +199,13 @@ class SimConfig:
       value = getattr(self, name)
       if not isinstance(value, (int, np.integer)) or value < 0:
         raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
+    chunks = self.lockstep_small_chunks
+    if isinstance(chunks, (int, np.integer)) or not all(
+        isinstance(size, (int, np.integer)) and size >= 1 for size in chunks):
+      raise ConfigError(f"lockstep_small_chunks must be positive integers, got {chunks!r}")
+    object.__setattr__(self, "lockstep_small_chunks", tuple(int(size) for size in chunks))
+    if self.observation_dtype not in ("int8", "int32"):
+      raise ConfigError(f"observation_dtype must be int8 or int32, got {self.observation_dtype!r}")
     if not isinstance(self.plan_window, (int, np.integer)) or self.plan_window < 0:
       raise ConfigError(f"plan_window must be a non-negative integer, got {self.plan_window!r}")
     if not (math.isfinite(self.res) and self.res > 0):

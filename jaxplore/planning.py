@@ -298,45 +298,37 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
   return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))
 
 
-# Robots planned together under the lockstep strategy, at least: one chunk's shortest paths are
-# solved together by relaxation. Measured on one H200 (office, nearest frontier, 1,024 robots),
-# planning the whole batch at every step (about 1 in ``replan_every`` robots needs to) spent most
-# of its time in the whole-grid solves that a few robots needed.
-LOCKSTEP_PLAN_CHUNK = 64
-
-
 def lockstep_plan_chunk(config: SimConfig, batch: int) -> int:
   """Robots planned together in the lockstep window round (or, without a window, on the whole
   grid): those expected to plan at one step, ``1 / replan_every`` of the batch, at least
-  :data:`LOCKSTEP_PLAN_CHUNK`, at most the batch."""
-  return min(batch, max(LOCKSTEP_PLAN_CHUNK, -(-batch // config.replan_every)))
+  ``config.lockstep_min_chunk``, at most the batch.
 
-
-# Smaller chunks a lockstep round without a window takes instead of its own when one of them
-# holds every robot that needs a plan (:func:`_plan_robots_by_need`): a ladder of factor 4, so
-# a round pays for at most 4 times the rows it needs. (li2020 on lab, 256 robots: 2-7 of them
-# need a plan at a typical step, so ~30-110 of 4,096, whose own chunk is 512.) 1.32x on a CPU
-# with lockstep forced; on one H100 at 1,024 robots no faster than 4 and 16 alone (a round is
-# latency-bound there) and 12-18 s more compile; not timed there at 4,096
-# (experiments/results/bench_lockstep_variants_gpu.md).
-LOCKSTEP_SMALL_CHUNKS = (4, 16, 64, 256, 1024, 4096)
+  One chunk's shortest paths are solved together by relaxation. Planning the whole batch at
+  every step (about 1 in ``replan_every`` robots needs to) spent most of its time in the
+  whole-grid solves that a few robots needed; gathering those into chunks of at least 64 ran
+  several times faster on a GPU (``experiments/results/bench_accelerator_gpu.md``, "Gathered
+  planning chunks"), and smaller floors gained little there
+  (``bench_lockstep_variants_gpu.md``: ``chunk4``)."""
+  return min(batch, max(config.lockstep_min_chunk, -(-batch // config.replan_every)))
 
 
 def _plan_robots_by_need(config: SimConfig, world: World, params: Params, state: State, need,
                          chunk: int):
-  """:func:`_plan_robots` on the whole grid in the smallest of :data:`LOCKSTEP_SMALL_CHUNKS`
+  """:func:`_plan_robots` on the whole grid in the smallest of ``config.lockstep_small_chunks``
   that holds every robot with ``need`` set, else in chunks of ``chunk`` as before.
 
   A planner that replans only when its path is done (li2020) has a robot or two of 64
   planning at a typical step, and a chunk pays for all its rows, copies included. The planner is
   compiled once per size (``lax.switch``); each call is never larger, nor are there more of them.
-  On one H100 (``lab``, li2020, 64 and 256 robots, sizes 4 and 16 below the round's 64) 1.5-1.6x
-  the robot-steps/s of fixed chunks, at twice the compile time
-  (``experiments/results/bench_lockstep_variants_gpu.md``). A chunk's size never changes a
-  plan, so the results are the same bit for bit.
+  The default sizes are a ladder of factor 4 (4, 16, 64, ...), so a round pays for at most 4
+  times the rows it needs: chunks by need beat fixed chunks for li2020 on ``lab`` on a GPU, at
+  more compile time, and the full ladder beat 4 and 16 alone on a CPU with lockstep forced while
+  a GPU showed no difference (``experiments/results/bench_lockstep_variants_gpu.md``,
+  ``bench_lockstep_ladder_cpu.md``). A chunk's size never changes a plan, so the results are
+  the same bit for bit.
   """
   chunk = min(chunk, need.shape[0])
-  sizes = sorted({size for size in LOCKSTEP_SMALL_CHUNKS if size < chunk} | {chunk})
+  sizes = sorted({size for size in config.lockstep_small_chunks if size < chunk} | {chunk})
   rounds = [functools.partial(_plan_robots, config, world, params, need=need, window=0,
                               chunk=size) for size in sizes]
   if len(rounds) == 1:
@@ -351,16 +343,16 @@ def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params,
   """:func:`plan_where_needed` for an accelerator: the robots that need a plan are gathered in
   chunks (the last filled with copies of its own last robot), each chunk one set of kernels, its
   shortest paths solved by relaxation (:data:`jaxplore.graph.STRATEGY_BATCHING`). The window
-  round takes the robots expected to plan at one step (``1 / replan_every`` of the batch, at least
-  :data:`LOCKSTEP_PLAN_CHUNK`) as one chunk: a planner whose work is a long loop of small
-  kernels (li2020's visible gains) pays per chunk, not per robot. The whole-grid round after it,
-  for the few plans the window could not certify, takes chunks of :data:`LOCKSTEP_PLAN_CHUNK`,
-  or a smaller chunk when one holds them all (:func:`_plan_robots_by_need`): a whole-grid solve
-  costs per row (office, nearest frontier, 1,024 robots, lockstep forced on a 2-core CPU:
-  1.41-1.44x the robot-steps/s of chunks of 64; on one H100 at 4,096 robots no difference
-  beyond the run-to-run drift of 8 %). A planner without a
-  window plans on the whole grid in the window round's chunks, or in a smaller one by need
-  likewise. The results are :func:`plan_where_needed`'s."""
+  round takes the robots expected to plan at one step (:func:`lockstep_plan_chunk`) as one
+  chunk: a planner whose work is a long loop of small kernels (li2020's visible gains) pays per
+  chunk, not per robot. The whole-grid round after it, for the few plans the window could not
+  certify, takes chunks of ``config.lockstep_min_chunk``, or a smaller chunk when one holds them
+  all (:func:`_plan_robots_by_need`; ``config.lockstep_leftovers_by_need``): a whole-grid solve
+  costs per row, and chunks by need ran faster on a CPU with lockstep forced, no slower on a GPU
+  (``experiments/results/bench_lockstep_leftovers_cpu.md``,
+  ``bench_lockstep_variants_gpu.md``). A planner without a window plans on the whole grid in
+  the window round's chunks, or in a smaller one by need likewise. The results are
+  :func:`plan_where_needed`'s."""
   need = needs_plan(config, state)
   batch = need.shape[0]
   per_step = lockstep_plan_chunk(config, batch)
@@ -368,8 +360,10 @@ def _plan_where_needed_lockstep(config: SimConfig, world: World, params: Params,
     return _plan_robots_by_need(config, world, params, state, need, per_step)[0]
   state, certified = _plan_robots(config, world, params, state, need, config.plan_window,
                                   per_step)
-  return _plan_robots_by_need(config, world, params, state, need & ~certified,
-                              min(batch, LOCKSTEP_PLAN_CHUNK))[0]
+  leftovers = min(batch, config.lockstep_min_chunk)
+  if not config.lockstep_leftovers_by_need:
+    return _plan_robots(config, world, params, state, need & ~certified, 0, leftovers)[0]
+  return _plan_robots_by_need(config, world, params, state, need & ~certified, leftovers)[0]
 
 
 def plan_where_needed(config: SimConfig, world: World, params: Params, state: State) -> State:

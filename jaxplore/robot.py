@@ -169,7 +169,8 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   shape = (config.height, config.width)
   n_cross = config.max_range_cells + 1
   slam = config.slam == "scan_matching"
-  whole_grid = config.strategy == "lockstep"
+  lockstep = config.strategy == "lockstep"
+  whole_grid = lockstep and config.lockstep_whole_grid_update
 
   def one(robot, grids, inputs):
     logodds, graph = grids
@@ -236,9 +237,9 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
       seen, est_uv, end_rows, end_cols, est_dirs = seen_from(pose_est)
       carried = dict(true_origin=(true_uv[0], true_uv[1]), true_dirs=dirs)
     if not slam:
-      observed = sensor.mark_observed(sensor.empty_observation(shape), shape, seen, est_uv[0],
-                                      est_uv[1], end_rows, end_cols, n_cross, active, est_dirs,
-                                      **carried)
+      observed = sensor.mark_observed(sensor.empty_observation(shape, config.observation_dtype),
+                                      shape, seen, est_uv[0], est_uv[1], end_rows, end_cols,
+                                      n_cross, active, est_dirs, **carried)
 
     logodds, d_entropy, d_covered = mapping.integrate_observation(
         logodds, robot, sensor.observation_tiles(observed, shape), world.reachable, params,
@@ -262,7 +263,7 @@ def _sense(config: SimConfig, world: World, params: Params, state: State, key, a
   inputs = (params, state.pose, state.pose_est, state.cov, key, active, angles,
             sensor.directions(angles), sensor.directions(est_angles), odometry,
             (state.entropy, state.covered))
-  batched = mapping.per_robot(one, lockstep=whole_grid)
+  batched = mapping.per_robot(one, lockstep=lockstep)
   graph = state.graph if slam else None
   (logodds, graph), (pose_est, cov, d_entropy, d_covered) = batched((state.logodds, graph),
                                                                      inputs)
@@ -365,7 +366,8 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
     graph = slam_model.optimise(config, graph)
     logodds, entropy, covered = slam_model.rebuild(
         logodds, robot, graph, own_scans(), offsets, world.origin, config.res, world.reachable,
-        params, config.max_range_cells + 1, config.strategy == "lockstep")
+        params, config.max_range_cells + 1,
+        config.strategy == "lockstep" and config.lockstep_whole_grid_update)
     return graph, logodds, _Rebuilt(jnp.bool_(True), entropy, covered)
 
   def unchanged(graph, logodds):

@@ -363,8 +363,10 @@ def _tile_counts(shape):
   return -(-shape[0] // OBS_TILE), -(-shape[1] // OBS_TILE)
 
 
-def empty_observation(shape):
-  """int8[n_tiles * OBS_TILE**2 + 1] zeros: the observation layout of :func:`mark_observed`.
+def empty_observation(shape, dtype=jnp.int8):
+  """int8[n_tiles * OBS_TILE**2 + 1] zeros: the observation layout of :func:`mark_observed`
+  (``dtype``: another integer type for the buffer, ``SimConfig.observation_dtype``; int8 won:
+  ``experiments/results/bench_lockstep_variants_gpu.md``, ``obs32``).
 
   Cell (row, col) of an (H, W) grid lives in tile ``(row // OBS_TILE, col // OBS_TILE)`` (tiles
   row-major, ``ceil(W / OBS_TILE)`` per row), at ``(row % OBS_TILE, col % OBS_TILE)`` inside it;
@@ -372,7 +374,7 @@ def empty_observation(shape):
   the parts of the grid a scan touched (:func:`observation_tiles`).
   """
   n_rows, n_cols = _tile_counts(shape)
-  return jnp.zeros((n_rows * n_cols * OBS_TILE**2 + 1,), jnp.int8)
+  return jnp.zeros((n_rows * n_cols * OBS_TILE**2 + 1,), dtype)
 
 
 def _observation_index(rows, cols, shape):

@@ -1,7 +1,9 @@
-"""``experiments/bench_lockstep_variants.py``: its variants patch what they say, and its
-comparison of final states tells bit for bit from a changed leaf. (A candidate that wins on a
-GPU moves into the package with its checks against the engine: see tests/test_mapping.py.)"""
+"""``experiments/bench_lockstep_variants.py``: each variant is a setting passed to the engine (no
+module patched) that changes what it says, and its comparison of final states tells bit for bit
+from a changed leaf. (A candidate that wins on a GPU moves into the package with its checks
+against the engine: see tests/test_mapping.py.)"""
 
+import functools
 import sys
 from pathlib import Path
 
@@ -9,40 +11,76 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import EAGER_AND_JIT
+from conftest import EAGER_AND_JIT, box_world
 
-from jaxplore import mapping
-from test_mapping import _observation_case
+from jaxplore import sim
+from jaxplore.config import config_for, make_params
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import bench_lockstep_variants as variants  # noqa: E402
 
 
-def test_the_variants_undo_what_landed(monkeypatch):
-  """``tile_loop`` brings the belief update's loop over tiles back under the lockstep strategy,
-  ``coarse_ladder`` only chunks of 4 and 16 below a round's own, ``fixed_chunks`` the planning
-  chunks that ignore how many robots need a plan, ``fixed_leftovers`` them for the whole-grid
-  round after a window."""
-  from jaxplore import planning
-  monkeypatch.setattr(mapping, "integrate_observation", mapping.integrate_observation)
-  monkeypatch.setattr(planning, "LOCKSTEP_SMALL_CHUNKS", planning.LOCKSTEP_SMALL_CHUNKS)
-  params, logodds, _, tiles, reachable = _observation_case((37, 50), seed=7)
-  args = (jnp.asarray(logodds), 2, jnp.asarray(tiles), jnp.asarray(reachable), params)
-  loops = lambda: str(jax.make_jaxpr(
-      lambda *a: mapping.integrate_observation(*a, whole_grid=True))(*args)).count("while[")
-  assert loops() == 0
-  variants._patch("tile_loop")
-  assert loops() == 1
-  assert len(planning.LOCKSTEP_SMALL_CHUNKS) > 2
-  variants._patch("coarse_ladder")
-  assert planning.LOCKSTEP_SMALL_CHUNKS == (4, 16)
-  variants._patch("fixed_chunks")
-  assert planning.LOCKSTEP_SMALL_CHUNKS == ()
-  monkeypatch.setattr(planning, "_plan_where_needed_lockstep", planning._plan_where_needed_lockstep)
-  engine = planning._plan_where_needed_lockstep
-  variants._patch("fixed_leftovers")
-  assert planning._plan_where_needed_lockstep.func is variants._plan_where_needed_fixed_leftovers
-  assert planning._plan_where_needed_lockstep.args == (engine,)
+def _config(planner="nearest_frontier"):
+  grid = box_world(20, 24, res=0.1)
+  params = make_params(res=0.1, r_robot=0.15, r_max=1.0)
+  return grid, params, config_for(grid.shape, grid.res, params, max_steps=8, planner=planner,
+                                  strategy="lockstep")
+
+
+def test_each_variant_is_a_setting_of_the_engine_passed_in():
+  """``tile_loop`` turns the lockstep whole-grid belief update off, ``coarse_ladder`` leaves
+  only chunks of 4 and 16 below a round's own, ``fixed_chunks`` none, ``fixed_leftovers`` takes
+  the whole-grid round after a window out of them, ``obs32`` and ``chunk*`` set the observation
+  buffer's dtype and the smallest planning chunk; head is the engine as it is."""
+  _, _, config = _config()
+  assert variants.adjust("head")(config) == config
+  expected = {"tile_loop": {"lockstep_whole_grid_update": False},
+              "coarse_ladder": {"lockstep_small_chunks": (4, 16)},
+              "fixed_chunks": {"lockstep_small_chunks": ()},
+              "fixed_leftovers": {"lockstep_leftovers_by_need": False},
+              "obs32": {"observation_dtype": "int32"},
+              "chunk16": {"lockstep_min_chunk": 16}, "chunk4": {"lockstep_min_chunk": 4}}
+  for name, fields in expected.items():
+    adjusted = variants.adjust(name)(config)
+    assert adjusted != config and hash(adjusted) != hash(config)  # a program of its own
+    assert {field: getattr(adjusted, field) for field in fields} == fields
+    assert adjusted.planner == config.planner
+  with pytest.raises(SystemExit, match="li2020"):
+    variants.adjust("visible_by_depth")(config)
+
+
+def test_the_belief_update_variants_reach_the_traced_scan():
+  """The whole-grid update has no loop over tiles (``tile_loop`` brings one back), and the
+  observation buffer is int8 (int32 with ``obs32``): in the program of a batch's reset scan."""
+  grid, params, config = _config()
+  world = sim.make_world(grid, 0.15)
+  params = sim.broadcast_params(params, 2)
+  keys = jax.random.split(jax.random.PRNGKey(0), 2)
+  starts = jnp.asarray([[0.5, 0.6, 0.0], [1.0, 0.6, 0.0]])
+  program = lambda config: str(jax.make_jaxpr(
+      lambda p, k, s: sim.reset_batch(config, world, p, k, s))(params, keys, starts))
+  head = program(config)
+  tile_loop = program(variants.adjust("tile_loop")(config))
+  assert tile_loop.count("while[") > head.count("while[")
+  buffer = f"[{-(-grid.shape[0] // 16) * -(-grid.shape[1] // 16) * 16 * 16 + 1}]"
+  obs32 = program(variants.adjust("obs32")(config))
+  assert "i8" + buffer in head and "i32" + buffer not in head
+  assert "i32" + buffer in obs32 and "i8" + buffer not in obs32
+
+
+def test_the_visible_variants_run_li2020s_visible_region_with_its_sums_passed_in():
+  from jaxplore.planners import li2020
+  _, _, config = _config("li2020")
+  assert config.planner.settings.region == "beams"
+  visible = variants.adjust("visible")(config)
+  by_depth = variants.adjust("visible_by_depth")(config)
+  assert visible.planner.settings == by_depth.planner.settings
+  assert visible.planner.settings.region == "visible"
+  assert visible.planner.plan is li2020.plan_li2020
+  assert isinstance(by_depth.planner.plan, functools.partial)
+  assert by_depth.planner.plan.func is li2020.plan_li2020
+  assert by_depth.planner.plan.keywords == {"visible_sums": variants._visible_by_depth}
+  assert variants.COMPARED_WITH["visible_by_depth"] == "visible"
 
 
 def test_compare_tells_bit_for_bit_from_a_changed_leaf(tmp_path):
@@ -78,14 +116,3 @@ def test_visible_gains_by_depth_are_the_packages_to_float_summation_order(radius
   # Not a copy of the disc's plain sums: some sight lines are blocked on this map.
   blind = li2020.visible_gains(gains, jnp.zeros_like(occupied), radius, 2)[0]
   assert not np.allclose(np.asarray(blind), np.asarray(got[0]))
-
-
-def test_the_visible_by_depth_variant_replaces_lockstep_visible_gains(monkeypatch):
-  from jaxplore.planners import li2020
-  from visible_by_depth import visible_gains_by_depth
-  monkeypatch.setattr(li2020, "visible_gains", li2020.visible_gains)
-  variants._patch("visible_by_depth")
-  gains, occupied = jnp.ones((1, 9, 9)), jnp.zeros((9, 9), bool).at[4, 6].set(True)
-  patched = li2020.visible_gains(gains, occupied, 3.0, 8)
-  candidate = visible_gains_by_depth(gains, occupied, 3.0)
-  assert all(np.array_equal(a, b) for a, b in zip(patched, candidate))

@@ -1,6 +1,7 @@
 """The planner's view of a belief (planning.belief_view): inflation and the escape route out of
 it, against SciPy's distance transform and a plain breadth-first search."""
 
+import dataclasses
 from collections import deque
 
 import chex
@@ -162,10 +163,10 @@ def test_lockstep_chunks_by_need_are_the_smallest_that_holds_every_robot_that_ne
 
 
 @pytest.mark.slow  # three planning programs: ~20 s to compile on 2 cores
-def test_lockstep_plans_in_a_smaller_chunk_when_it_holds_every_robot_that_needs_one(monkeypatch):
+def test_lockstep_plans_in_a_smaller_chunk_when_it_holds_every_robot_that_needs_one():
   """A planner without a window, under the lockstep strategy, 6 robots: one robot needing a plan
   falls in the chunk of 4, five in the chunk of 6. Either way the states are those of fixed
-  chunks of 6 (LOCKSTEP_SMALL_CHUNKS empty), bit for bit, and only the robots that needed a
+  chunks of 6 (``lockstep_small_chunks`` empty), bit for bit, and only the robots that needed a
   plan planned."""
   from jaxplore import planning
   robots = 6
@@ -179,12 +180,10 @@ def test_lockstep_plans_in_a_smaller_chunk_when_it_holds_every_robot_that_needs_
   starts = jnp.asarray([[0.5 + 0.5 * i, 0.6 + 0.3 * (i % 2), 0.0] for i in range(robots)])
   state = sim.reset_batch(config, world, params, jax.random.split(jax.random.PRNGKey(0), robots),
                           starts)
-  # Compiled here: the chunk sizes are read when the program is traced.
-  plan = lambda: jax.jit(lambda s: planning._plan_where_needed_lockstep(
+  plan = lambda config: jax.jit(lambda s: planning._plan_where_needed_lockstep(
       config, world, params, s)).lower(state).compile()
-  by_need = plan()
-  monkeypatch.setattr(planning, "LOCKSTEP_SMALL_CHUNKS", ())
-  fixed = plan()
+  by_need = plan(config)
+  fixed = plan(dataclasses.replace(config, lockstep_small_chunks=()))
   for needing in (1, 5):
     needs = np.arange(robots) >= robots - needing
     before = state.replace(busy=jnp.asarray(~needs), since_plan=jnp.zeros(robots, jnp.int32))

@@ -905,11 +905,14 @@ def path_geometry(config, robot, params, pred):
   return sums, cov, xy
 
 
-def path_gains(config, view, robot, pred, gains):
+def path_gains(config, view, robot, pred, gains, visible_sums=None):
   """Per-node Eq 20 sums of each channel of ``gains`` (f32[C, H, W]) over the regions of every
   path's waypoints (``Settings.region``), each cell once per path. Returns f32[H*W, C].
 
   The channels are independent: a channel's sums do not depend on the others passed with it.
+  ``visible_sums``: the ``"visible"`` region's sums, a function of :func:`visible_gains`'
+  signature (None: :func:`visible_gains`), for a candidate to be compared against it
+  (``experiments/bench_lockstep_variants.py``'s ``visible_by_depth``).
   """
   h, w = config.height, config.width
   n_channels = gains.shape[0]
@@ -922,7 +925,8 @@ def path_gains(config, view, robot, pred, gains):
     # Each cell once per path, counted where it enters the region of a waypoint (seen from that
     # waypoint), or where it leaves it (seen from the waypoint it leaves), whichever sum is
     # larger; see visible_gains and Settings.region.
-    seen_sums = visible_gains if settings.region == "visible" else beam_gains
+    seen_sums = ((visible_sums or visible_gains) if settings.region == "visible" else
+                 beam_gains)
     full, crescent = seen_sums(gains, view.occupied, radius, VISIBLE_BLOCK[config.strategy])
     full, crescent = full.reshape(n_channels, -1), crescent.reshape(8, n_channels, -1)
     code = (d_row + 1) * 3 + (d_col + 1)  # index into NEIGHBOURS_8 after removing (0, 0)
@@ -965,8 +969,10 @@ def average_observable_entropy(view: base.BeliefView, radius: float):
   return jnp.sum(jnp.where(observable, entropy, 0.0)) / jnp.maximum(jnp.sum(observable), 1)
 
 
-def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key, memory):
-  """One planning round of Algorithm 1 (see the module docstring). Returns (Plan, memory)."""
+def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, key, memory, *,
+                visible_sums=None):
+  """One planning round of Algorithm 1 (see the module docstring). Returns (Plan, memory).
+  ``visible_sums``: as :func:`path_gains`' (None: :func:`visible_gains`)."""
   weights = params.planner
   settings = config.settings
   h, w = config.height, config.width
@@ -1005,7 +1011,8 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   def one_pass(carry):
     k, sums = carry
     channel = jax.lax.dynamic_slice_in_dim(gains, k, 1)
-    return k + 1, sums.at[k].set(path_gains(config, view, robot, sp.pred, channel)[:, 0])
+    sums_k = path_gains(config, view, robot, sp.pred, channel, visible_sums)[:, 0]
+    return k + 1, sums.at[k].set(sums_k)
 
   _, (gain, reexplore) = jax.lax.while_loop(
       more_passes, one_pass, (jnp.int32(0), jnp.zeros((2, h * w), jnp.float32)))
