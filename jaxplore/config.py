@@ -79,10 +79,10 @@ class SimConfig:
     dijkstra_tiles_after_rounds: the solver's ``tiles_after_rounds``
       (:func:`jaxplore.graph.shortest_paths`): rounds of whole-grid sweeps after which a plan not
       yet settled is finished tile by tile; 0 (the default) = never. The built-in worlds' plans
-      settle in at most ~18 rounds, where the tiles do not pay, and they add ~0.6 s of compile
-      time per solver in the program. The solver alone finishes 256 x 256 mazes of 3-cell
-      corridors ~2.8x sooner with 16 (``experiments/bench_dijkstra.py``), but the engine, whose
-      plans are mostly windowed, ran a 0.6 m-corridor maze at the same rate with it.
+      settle in few rounds, where the tiles do not pay, and they add compile time to every
+      solver in the program; the solver alone finishes narrow mazes sooner with them, but the
+      engine, whose plans are mostly windowed, ran a maze at the same rate with them
+      (docs/performance.md, experiments/results/bench_dijkstra.md).
     plan_chunk: robots planned together with ``vmap`` (:func:`jaxplore.sim.plan_where_needed`).
     plan_window: side in cells of the square window around the robot that a ``windowed``
       planner (nearest frontier, FD) plans on first; the whole grid is planned only when the
@@ -481,13 +481,9 @@ def window_margin(max_inflation_cells: int) -> int:
 
 # Distance (m) around the robot a planning window is sized for. The nearest frontier is usually
 # this close whatever the sensor range: frontiers also open at the edges of the field of view and
-# behind nearby obstacles. Measured with nearest frontier, 32 robots, the li2020 preset (15 m
-# lidar) over the first 600 steps (office 1200): a 96-cell window at 0.1 m could not certify
-# 0.6 % of plans on `open`, 10.9 % on `lab`, 6.5 % on `office`, against 8.0 %, 25.0 %, 14.4 %
-# with 64 cells; 128 cells certify 94-100 % but cost ~1.8x a 96-cell plan. Explore-Bench `room`
-# (3.5 m lidar): 0.9 % over the first 600 steps, 17 % over whole episodes; `room_with_corner`
-# with 88 cells (see auto_plan_window), 32 robots: 2.2 % over the first 200 steps, 13.5 % over
-# whole episodes (96 cells: 1.2 %, 11.4 %).
+# behind nearby obstacles. A smaller window leaves many more plans uncertified (each planned
+# again on the whole grid), a larger one certifies few more and costs more per plan: the shares
+# of plans certified by window size are in experiments/results/plan_window.md.
 PLAN_REACH_M = 3.5
 
 
@@ -504,9 +500,8 @@ def auto_plan_window(height: int, width: int, reach_cells: int, max_inflation_ce
 
   Rounding to 8 rather than 32 cells gives Explore-Bench (3.5 m at 0.1 m) 88 cells instead of
   96: the planning round costs less and the few more plans the window cannot certify cost less
-  than that (interleaved A/B of 32 steps of 128 robots, steps 0-32 / 300-332: room_with_corner
-  0.92 / 0.95x, corridor 0.93 / 0.99x, loop_with_corridor 0.89 / 0.90x; 80 cells were 1.06x on
-  room_with_corner at steps 300-332, 72 cells 1.24x).
+  than that, early and late in an episode; smaller windows than 88 cells lost late in an episode
+  (experiments/results/plan_window.md).
   """
   side = 8 * math.ceil((2 * reach_cells + 2 * window_margin(max_inflation_cells) + 8) / 8)
   return side if 2 * side * side <= height * width and side < min(height, width) else 0

@@ -211,8 +211,9 @@ def integrate_observation(logodds, robot, observed, reachable, params, after=0.0
 
   With ``whole_grid`` (the ``lockstep`` strategy) the robot's whole grid is updated at once
   instead: batched by ``vmap`` on a GPU, the tile loop is a chain of small gathers and scatters
-  per tile, and the whole-grid update ran 1.4-2.2x the whole step's robot-steps/s (``office``,
-  1,024-16,384 robots, one H100: ``experiments/bench_lockstep_variants.py``). The beliefs and
+  per tile, and the whole-grid update made the whole step faster on one GPU
+  (``experiments/results/bench_lockstep_variants_gpu.md``, the ``whole_grid`` rows; the
+  ``tile_loop`` variant of ``experiments/bench_lockstep_variants.py`` undoes it). The beliefs and
   coverage are the tile loop's bit for bit; the entropy change is summed in another order, so
   it may differ in its last bits.
 

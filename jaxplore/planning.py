@@ -393,8 +393,8 @@ def plan_where_needed(config: SimConfig, world: World, params: Params, state: St
                                     config.plan_chunk)
     need = need & ~certified
   # Whole-grid plans are few and dear: the robots left over after full chunks plan one by one
-  # rather than in a chunk padded with copies (Explore-Bench room_with_corner, 128 robots,
-  # steps 32-64: 0.98x the time; steps 300-332, more robots beyond their window: 0.94x).
+  # rather than in a chunk padded with copies, which was faster, the more so the more robots
+  # are beyond their window (experiments/results/plan_window.md).
   chunk = min(config.plan_chunk, need.shape[0])
   if chunk == 1:
     return _plan_robots(config, world, params, state, need, 0, 1)[0]

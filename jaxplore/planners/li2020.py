@@ -107,12 +107,11 @@ class Weights:
 
 DEFAULTS = {f.name: f.default for f in dataclasses.fields(Weights)}
 
-# Disc offsets per loop step of visible_gains, by execution strategy
-# (experiments/bench_visible_blocks.py: lab-sized 130 x 170 grid, R_e 57 cells, robots vmapped).
-# One H200: 28 / 4.0 / 2.6 ms per robot at 4 / 64 / 256 robots in blocks of 8, 68 / 6.3 / 3.8
-# one offset at a time. One core of the 2-core CPU, 4 robots: 87-93 ms per robot in blocks of
-# 2, 87-97 of 4, 118 of 8, 105-108 one at a time; lab, li2020, 64 robots on both cores:
-# 486-492 robot-steps/s in blocks of 2, 459-466 of 4, 432-441 one at a time.
+# Disc offsets per loop step of visible_gains, by execution strategy. On a GPU a block is one
+# fused kernel instead of a chain of small ones per offset, and 8 was the best of 4, 8 and 16;
+# on a CPU blocks of 2 were the fastest, for the sums alone and for a whole run. The numbers:
+# experiments/results/bench_visible_blocks_cpu.md (experiments/bench_visible_blocks.py) and
+# bench_accelerator_gpu.md ("visible gains in blocks of 8").
 VISIBLE_BLOCK = {"per_robot": 2, "lockstep": 8}
 
 # det Σ_max = 1e2 (m²·m²·rad²) is this project's choice, not Li's (the paper gives no value).
@@ -159,8 +158,8 @@ class Settings:
       and robots drive back and forth between two places that both count them. ``"disc"``
       costs one shifted sum per crescent offset (about 20 R_e), ``"visible"`` about three per
       disc offset (π R_e²), ``"beams"`` about as much as ``"visible"`` on a CPU (2.6 beam steps
-      per disc offset, :data:`BEAM_GROUP` beams a loop step: 0.07-0.08 s each for one robot's
-      sums on lab and intel, R_e 57 cells; not measured on a GPU).
+      per disc offset, :data:`BEAM_GROUP` beams a loop step; timed in docs/papers/li2020.md; not
+      measured on a GPU).
   """
 
   r_e: float = setting(0.75, "Li et al. Eq 5-6: the effective radius R_e (the entropy map's "
