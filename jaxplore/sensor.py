@@ -41,10 +41,10 @@ import jax.numpy as jnp
 CORNER_EPS = 1e-3  # cells; a grid line crossed this close to another counts as a corner
 # Beams walked in lockstep (the vector width) and crossings per axis per loop iteration. A group
 # walks as far as its longest beam; an iteration has a fixed cost of about a microsecond on
-# XLA:CPU. The best trade-offs measured on this 2-core CPU (experiments/bench_engine.py worlds,
-# the whole step timed): 32 x 8 to find the hits; 64 x 8 to mark the cells seen (a 15 m scan:
-# 0.92x the step time of 32 x 8), and for ranges up to MARK_WHOLE_RANGE crossings every beam at
-# once to its full range (Explore-Bench's 3.5 m at 0.1 m: 0.81-0.90x; a 15 m scan so: 1.2x).
+# XLA:CPU. The best trade-offs on the 2-core CPU, the whole step timed: 32 x 8 to find the hits;
+# 64 x 8 to mark the cells seen, and for ranges up to MARK_WHOLE_RANGE crossings every beam at
+# once to its full range (faster for a short scan, slower for a long one). The numbers:
+# experiments/results/bench_engine.md, "Marking a scan's cells".
 MEASURE_GROUP, MEASURE_BLOCK = 32, 8
 MARK_GROUP, MARK_BLOCK = 64, 8
 MARK_WHOLE_RANGE = 48

@@ -810,7 +810,7 @@ def _covariance_from_sums(sums, xy, xy_root, cov0):
       jnp.stack([-sum_b_dxdy, s["a"] + sum_b_dx2, sum_b_dx], -1),
       jnp.stack([-sum_b_dy, sum_b_dx, s["b"]], -1)], -2)
   # A Σ_0 Aᵀ entry by entry: XLA:CPU runs a batched ``dot_general`` of 3x3 matrices as a
-  # library call that was the slowest operation of a planning round (~1.9 ms for 4 x 40,000).
+  # library call that was the slowest operation of a planning round (docs/performance.md).
   dx, dy = x - xy_root[0], y - xy_root[1]
   c = cov0
   m = [[c[0, k] - dy * c[2, k] for k in range(3)], [c[1, k] + dx * c[2, k] for k in range(3)],
@@ -993,10 +993,11 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   candidates = candidates & (idx != root)
 
   # The Eq 20 gain of every path, then, only where no candidate gains (Eq 22's fallback), the
-  # re-explore metric: one channel of cell gains per pass of the same loop. The second pass
-  # (~40 % of a plan's time) is skipped by the plans that explore (108 of 113 in an episode of
-  # 8 robots on lab); under vmap a chunk runs it if any of its robots needs it (a batched
-  # lax.cond would run it for every chunk). The results are those of one two-channel pass.
+  # re-explore metric: one channel of cell gains per pass of the same loop. The second pass, a
+  # large share of a plan's time, is skipped by the plans that explore (most of them:
+  # experiments/results/bench_li2020_parts_cpu.md, "The re-explore pass"); under vmap a chunk
+  # runs it if any of its robots needs it (a batched lax.cond would run it for every chunk). The
+  # results are those of one two-channel pass.
   gains = cell_gains(view, entropy_map, params, weights["h0"], r_e_cells(config), settings.eq21)
   # A path's gain is what its road-mark points add to the region of P_0, where the robot stands
   # (see the comment before the scores below): its Eq 20 sum less the root's.

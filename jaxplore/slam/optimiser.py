@@ -44,9 +44,8 @@ iterations a solve). Loops past K enter T by their diagonal blocks only, and key
 missing odometry edge get 1e-3 of H's diagonal blocks in T (else T would be singular there); the
 conjugate gradients make up the difference, with more iterations. On the chain of 500 keyframes
 with 100 loops (N = 512, E = 640, K = 129) an iteration costs ~0.03 GFLOP, where a dense
-Cholesky of H costs 1.2 GFLOP (20 ms in LAPACK) and PCG with H's block tridiagonal part alone took
-~240 iterations a solve (47 ms a robot, 19 s for 64 under ``vmap``); a whole optimisation (4–5
-iterations) took 19 ms alone and 1.4 s for 64 robots under ``vmap`` on the 2-core test machine.
+Cholesky of H costs 1.2 GFLOP, and PCG with H's block tridiagonal part alone needed ~240
+iterations a solve; the timings are in ``experiments/results/bench_slam_parts_cpu.md``.
 
 Float32 throughout. ``Exp`` and ``Log`` use series near θ = 0 for ``sin θ / θ`` and
 ``(θ/2) cot(θ/2)``, and ``1 − cos θ = 2 sin²(θ/2)``, so they hold float32 precision at every
@@ -318,9 +317,9 @@ def _solve_loop_columns(factor: Tridiagonal, g, loop_src, loop_dst):
 # --- dense Cholesky in XLA ----------------------------------------------------------------------
 # The capacitance is factorised here rather than by LAPACK: jaxlib's CPU LAPACK comes from
 # SciPy's OpenBLAS, whose potrf goes multi-threaded from n = 256 and, with the other cores busy
-# (XLA's own threads, other processes), took 170–370 ms instead of 0.4–0.7 ms for n = 256–387 on
-# the 2-core test machine (OPENBLAS_NUM_THREADS=1: 0.7 ms). This blocked version takes ~2 ms at
-# n = 387, whatever the other cores do, and batches under ``vmap`` as matrix products.
+# (XLA's own threads, other processes), stalled for hundreds of times its single-threaded time.
+# This blocked version costs the same whatever the other cores do, and batches under ``vmap`` as
+# matrix products (experiments/results/bench_slam_parts_cpu.md).
 
 _BLOCK = 64
 

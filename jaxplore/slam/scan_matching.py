@@ -291,8 +291,8 @@ def _responses(field, origin, res, points, weights, centre, dxy, dth):
   ``centre + (dxy[ix], dxy[iy], dth[a])``: the points are rotated once per heading, the
   translations added to their cell coordinates, all candidates looked up at once. That holds
   the ``A N² B`` looked-up values (4 bytes each: 1 MB a robot for an 11³ window of 180 beams)
-  and was measured faster than one heading at a time (``lax.map``: 0.65 vs 0.95 ms for one
-  robot, 70 vs 80 ms for 64 under ``vmap``, 2-core CPU)."""
+  and was measured faster than one heading at a time (``lax.map``;
+  ``experiments/results/bench_slam_parts_cpu.md``)."""
   rows, cols = _rotated_cells(origin, res, points, centre, centre[2] + dth)
   d = dxy / res
   values = _bilinear(field, rows[:, None, None, :] + d[None, :, None, None],
