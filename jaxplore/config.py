@@ -60,6 +60,12 @@ class SimConfig:
   declared with :func:`jaxplore.settings.setting`: their help, range and unit are there (and in
   ``jaxplore settings``); the others are sized by :func:`config_for` or given by the run.
 
+  The ``lockstep_*`` fields and ``observation_dtype`` are tuning choices of the engine whose
+  defaults won or lost on measurements (``experiments/bench_lockstep_variants.py`` compares
+  them; its numbers are in ``experiments/results/bench_lockstep_variants_gpu.md``); no value
+  changes a result, but for ``lockstep_whole_grid_update``, which sums the map's entropy change
+  in another order.
+
   Attributes:
     height, width: grid shape in cells (from the world).
     res: metres per cell (from the world).
@@ -111,12 +117,6 @@ class SimConfig:
       (:func:`jaxplore.mapping.integrate_observation`).
     observation_dtype: the dtype of a scan's observation buffer
       (:func:`jaxplore.sensor.empty_observation`): ``"int8"`` or ``"int32"``.
-
-    The ``lockstep_*`` fields and ``observation_dtype`` are tuning choices of the engine whose
-    defaults won or lost on measurements (``experiments/bench_lockstep_variants.py`` compares
-    them; its numbers are in ``experiments/results/bench_lockstep_variants_gpu.md``); no value
-    changes a result, but for ``lockstep_whole_grid_update``, which sums the map's entropy
-    change in another order.
   """
 
   height: int
