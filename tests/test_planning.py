@@ -13,7 +13,7 @@ from scipy import ndimage
 
 from conftest import EAGER_AND_JIT, box_world
 from jaxplore import mapping, sim
-from jaxplore.config import config_for, make_params
+from jaxplore.config import SimConfig, config_for, make_params
 from jaxplore.planners import base
 
 FREE, OCCUPIED, UNKNOWN = -3.0, 3.0, 0.0
@@ -148,7 +148,8 @@ def test_nearest_frontier_does_not_follow_a_notch_deeper_into_the_inflated_zone(
 def test_lockstep_chunks_by_need_are_the_smallest_that_holds_every_robot_that_needs_a_plan(
     monkeypatch, batch, chunk, needing, size):
   """Which chunk size ``_plan_robots_by_need`` plans in (``_plan_robots`` replaced by a stand-in
-  that returns the size it was given), traced with the count of robots needing a plan."""
+  that returns the size it was given), traced with the count of robots needing a plan, under
+  the default ``SimConfig.lockstep_small_chunks``."""
   from jaxplore import planning
 
   def stand_in(config, world, params, state, need, window, chunk):
@@ -158,7 +159,7 @@ def test_lockstep_chunks_by_need_are_the_smallest_that_holds_every_robot_that_ne
   monkeypatch.setattr(planning, "_plan_robots", stand_in)
   need = jnp.arange(batch) < needing
   planned = jax.jit(lambda need: planning._plan_robots_by_need(
-      None, None, None, jnp.int32(0), need, chunk)[0])(need)
+      SimConfig(height=8, width=8, res=0.1), None, None, jnp.int32(0), need, chunk)[0])(need)
   assert int(planned) == size
 
 
