@@ -30,6 +30,9 @@ SLAM_MODELS = ("oracle", "scan_matching")
 # walls drawn from keyframes a fraction of a cell apart leave evidence both ways (4 cells: 0.16
 # m² at 0.2 m, below explore_lite's min_frontier_size of 0.75 m of frontier).
 MAP_HOLE_CELLS = {"oracle": 0, "scan_matching": 4}
+# Each SLAM model's default SimConfig.trail: under the oracle the belief's walls are the truth's,
+# and a cell the robot drove through is traversable anyway.
+TRAIL = {"oracle": 0, "scan_matching": 1}
 
 # How a batch of robots is executed (SimConfig.strategy).
 STRATEGIES = ("auto", "per_robot", "lockstep")
@@ -172,6 +175,10 @@ class SimConfig:
                                 "ones are holes, no frontier (-1: 4 with scan_matching, 0 with "
                                 "the oracle)", owner="planning", static=True, ge=-1,
                                 integer=True)
+  trail: int = setting(-1, "plan through the cells the robot's keyframe trajectory crossed even "
+                       "within its radius of a believed wall (1), or not (0); -1: 1 with "
+                       "scan_matching, 0 with the oracle (needs a pose graph)", owner="planning",
+                       static=True, ge=-1, le=1, integer=True)
   strategy: str = "auto"
   lockstep_min_chunk: int = 64
   lockstep_small_chunks: tuple[int, ...] = (4, 16, 64, 256, 1024, 4096)
@@ -217,6 +224,11 @@ class SimConfig:
       declaration.check(getattr(self.sensor, name), f"sensor {self.sensor.name!r}: {name}")
     if self.map_hole_cells == -1:
       object.__setattr__(self, "map_hole_cells", MAP_HOLE_CELLS[self.slam])
+    if self.trail == -1:
+      object.__setattr__(self, "trail", TRAIL[self.slam])
+    if self.trail and not self.graph_nodes:
+      raise ConfigError("trail=1 plans along the keyframe trajectory of the robot's pose graph: "
+                        "it needs one (pose_graph=True, or slam='scan_matching')")
     if self.slam == "scan_matching":
       object.__setattr__(self, "pose_noise", True)
       if not self.graph_nodes:

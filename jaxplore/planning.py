@@ -44,7 +44,34 @@ def unexplored(config: SimConfig, unknown):
   return unknown & ~labels.enclosed_specks(unknown, config.map_hole_cells)
 
 
-def belief_view(config: SimConfig, params: Params, state: State, robot_cell
+# Points sampled on each segment of the keyframe trajectory (:func:`trail_cells`): 16 keep them
+# at most half a cell apart on a segment of 8 cells (keyframes are ``kf_dist``, 0.3 m by default,
+# apart: 1.5 cells at 0.2 m, 6 at 0.05 m).
+TRAIL_SAMPLES = 16
+
+
+def trail_cells(config: SimConfig, world: World, state: State):
+  """The cells of one robot's keyframe trajectory as it now estimates it: segments from each
+  keyframe's pose to the next and from the last to the current estimate, i32[N * S, 2] (row,
+  col); the samples of unused keyframe slots are (-1, -1), which no grid holds.
+
+  The robot's centre has been in these cells (up to its pose error), so they are a route it can
+  drive again although the belief may draw a wall within its radius of them; taken from the
+  pose graph, the trail follows every correction of the poses (a loop closure moves it with the
+  map rebuilt from the same keyframes)."""
+  graph = state.graph
+  index = jnp.arange(graph.poses.shape[0])
+  start = graph.poses[:, :2]
+  stop = jnp.where((index + 1 < graph.n_nodes)[:, None], jnp.roll(start, -1, axis=0),
+                   state.pose_est[None, :2])
+  t = jnp.linspace(0.0, 1.0, TRAIL_SAMPLES)
+  points = start[:, None] + t[None, :, None] * (stop - start)[:, None]  # [N, S, 2] (x, y)
+  cells = jnp.moveaxis(cell_of(jnp.moveaxis(points, -1, 0), world.origin, config.res), 0, -1)
+  cells = jnp.where((index < graph.n_nodes)[:, None, None], cells, -1)
+  return cells.reshape(-1, 2)
+
+
+def belief_view(config: SimConfig, params: Params, state: State, robot_cell, trail=None
                 ) -> planners_base.BeliefView:
   """The planner's view of one robot's belief (masks computed once per planning round).
 
@@ -53,7 +80,11 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
   ``max_inflation_cells + 1`` steps without ever stepping closer to a believed wall, so a robot
   that newly mapped walls inside its radius can drive out of the inflated zone but never deeper
   into it (with any escape cell traversable, goals near walls pulled the robot a few cells
-  further into a narrowing notch at each plan until it stood where no plan led out).
+  further into a narrowing notch at each plan until it stood where no plan led out). With
+  ``trail`` (cells, i32[K, 2], in the view's coordinates: :func:`trail_cells`), the free cells
+  the robot has driven through are traversable too: under SLAM a wall drawn a cell off by a
+  keyframe's few centimetres of pose error closes a passage of three or four cells to the
+  inflated belief, and a robot that went through one could otherwise never come back.
   """
   free, occupied, unknown = mapping.classify(state.logodds, params)
   wall_distance_sq = mapping.distance_sq_within(occupied, config.max_inflation_cells)
@@ -76,9 +107,14 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell
 
   # A loop, not unrolled: XLA would fuse each step into the next one's 8 neighbour reads.
   escape = jax.lax.fori_loop(0, config.max_inflation_cells + 1, widen, escape)
+  traversable = (free & ~inflated) | escape
+  if trail is not None:
+    on_trail = jnp.zeros(free.shape, bool).at[trail[:, 0], trail[:, 1]].set(
+        True, mode="drop", wrap_negative_indices=False)
+    traversable = traversable | (free & on_trail)
   return planners_base.BeliefView(
       logodds=state.logodds, free=free, occupied=occupied,
-      unknown=unknown, inflated=inflated, traversable=(free & ~inflated) | escape,
+      unknown=unknown, inflated=inflated, traversable=traversable,
       frontier=mapping.frontier(free, unexplored(config, unknown), occupied),
       blacklist=state.blacklist,
       pose_graph=(state.graph if config.planner.needs_pose_graph
@@ -106,7 +142,7 @@ def crop_maps(state: State, origin, shape) -> State:
   return state.replace(**{name: crop(getattr(state, name)) for name in _MAP_FIELDS})
 
 
-def _propose(config: SimConfig, params: Params, state: State, robot, origin, key):
+def _propose(config: SimConfig, params: Params, state: State, robot, origin, key, trail=None):
   """The planner's plan on the region of the grid that ``state``'s maps hold, at ``origin``.
 
   Returns (plan in grid coordinates, new memory, certified). The region is the whole grid (a
@@ -117,7 +153,7 @@ def _propose(config: SimConfig, params: Params, state: State, robot, origin, key
   shape = state.logodds.shape
   ctx = planner_context(config, shape)
   cell = robot.cell - origin
-  view = belief_view(config, params, state, cell)
+  view = belief_view(config, params, state, cell, None if trail is None else trail - origin[None])
   whole_grid = shape == (config.height, config.width)
   if not whole_grid:
     view, edge = planning_window.restrict(view, cell, origin, (config.height, config.width),
@@ -158,8 +194,8 @@ class PlanOutcome:
   certified: chex.Array
 
 
-def _plan_round(config: SimConfig, world: World, params: Params, state: State, origin
-                ) -> PlanOutcome:
+def _plan_round(config: SimConfig, world: World, params: Params, state: State, origin,
+                use_trail: bool = False) -> PlanOutcome:
   """One robot's planning round on the region of the grid that ``state``'s maps hold.
 
   ``state`` is one robot's state whose map leaves are the whole grid (``origin`` = (0, 0)) or,
@@ -169,7 +205,8 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
   robot waits on it forever; so are the cells around the goal of a robot that has stalled
   (driven ``stall_m`` without leaving ``stall_span`` or gaining a free cell:
   :func:`jaxplore.robot._watch_stall`), as explore_lite blacklists a goal with a tolerance of
-  :data:`STALL_BLACKLIST_CELLS` cells.
+  :data:`STALL_BLACKLIST_CELLS` cells. ``use_trail``: the robot may plan along its keyframe
+  trajectory (:func:`belief_view`).
   """
   spec = config.planner
   key, k_plan = jax.random.split(state.key)
@@ -190,7 +227,8 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
           stalled, mode="drop", wrap_negative_indices=False),
       stall_m=jnp.where(stalled, 0.0, state.stall_m))
   robot = robot_view(config, world, state)
-  result, memory, certified = _propose(config, params, state, robot, origin, k_plan)
+  trail = trail_cells(config, world, state) if use_trail else None
+  result, memory, certified = _propose(config, params, state, robot, origin, k_plan, trail)
   stuck = running & result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
   exhausted = running & ~result.valid
   install = running & result.valid
@@ -202,6 +240,7 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
       goal=jnp.where(install, result.goal, state.goal),
       look_at=jnp.where(install, result.look_at, robot.cell),
       last_goal=jnp.where(install, result.goal, state.last_goal),
+      on_trail=jnp.where(install, use_trail, state.on_trail),
       done=state.done | exhausted,
       reason=jnp.where(exhausted, EXHAUSTED, state.reason),
       memory=jax.tree.map(lambda new, old: jnp.where(running, new, old), memory, state.memory))
@@ -230,10 +269,26 @@ def _apply_plans(state: State, robots, outcome: PlanOutcome) -> State:
   return state.replace(blacklist=blacklist, **small)
 
 
+def _retry_on_trail(config: SimConfig, outcome: PlanOutcome, was_done, replan) -> PlanOutcome:
+  """``outcome``, but where a robot ended ``exhausted`` (found nothing on its belief), the
+  outcome of ``replan()``, the same round along its keyframe trail (``config.trail``): as a
+  navigation stack's recovery tries before it gives up. ``was_done``: the robots' ``done`` before
+  the round. Only a round with such a robot runs ``replan`` (a batch-level ``cond``)."""
+  if not config.trail:
+    return outcome
+  retry = outcome.state.done & ~was_done & (outcome.state.reason == EXHAUSTED)
+  pick = lambda new, old: jnp.where(retry.reshape(retry.shape + (1,) * (new.ndim - retry.ndim)),
+                                    new, old)
+  return jax.lax.cond(jnp.any(retry), lambda: jax.tree.map(pick, replan(), outcome),
+                      lambda: outcome)
+
+
 def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
   """One robot's planning round on the whole grid: ask the planner, install the path, handle
-  no-op goals (see :func:`_plan_round`)."""
-  outcome = _plan_round(config, world, params, state, jnp.zeros((2,), jnp.int32))
+  no-op goals (see :func:`_plan_round`; with ``config.trail``, :func:`_retry_on_trail`)."""
+  origin = jnp.zeros((2,), jnp.int32)
+  outcome = _retry_on_trail(config, _plan_round(config, world, params, state, origin), state.done,
+                            lambda: _plan_round(config, world, params, state, origin, True))
   batch = lambda tree: jax.tree.map(lambda x: x[None], tree)
   new = _apply_plans(batch(state), jnp.zeros((1,), jnp.int32), batch(outcome))
   return jax.tree.map(lambda x: x[0], new)
@@ -281,7 +336,7 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
     state, planned = carry
     robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
 
-    def plan_one(p, robot):
+    def plan_one(p, robot, use_trail=False):
       one = {name: jax.tree.map(lambda x: x[robot], getattr(state, name))
              for name in _small_fields()}
       cell = cell_of(one["pose_est"][:2], world.origin, config.res)
@@ -290,9 +345,12 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
       crop = lambda grid: None if grid is None else jax.lax.dynamic_slice(
           grid, corner, (1,) + shape)[0]
       maps = {name: crop(getattr(state, name)) for name in _MAP_FIELDS}
-      return _plan_round(config, world, p, State(**one, **maps), origin)
+      return _plan_round(config, world, p, State(**one, **maps), origin, use_trail)
 
-    outcome = jax.vmap(plan_one)(jax.tree.map(lambda x: x[robots], params), robots)
+    chunk_params = jax.tree.map(lambda x: x[robots], params)
+    outcome = _retry_on_trail(
+        config, jax.vmap(plan_one)(chunk_params, robots), state.done[robots],
+        lambda: jax.vmap(functools.partial(plan_one, use_trail=True))(chunk_params, robots))
     return _apply_plans(state, robots, outcome), planned.at[robots].set(outcome.certified)
 
   return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))

@@ -62,6 +62,8 @@ class State:
     stall_box: f32[4] (x min, y min, x max, y max) of the estimated positions since the stall
       watch last restarted; stall_m: f32 metres driven since; stall_covered: f32 ``covered``
       then (see :func:`_watch_stall`).
+    on_trail: bool the robot's path was planned along its keyframe trail (a recovery:
+      :func:`jaxplore.planning.belief_view`): driven through believed walls' margins as planned.
     memory: the planner's per-robot memory (a pytree; ``()`` for a planner without one).
     graph: the robot's SLAM pose graph (:class:`jaxplore.posegraph.PoseGraph`), or None when
       ``SimConfig.graph_nodes`` is 0.
@@ -93,6 +95,7 @@ class State:
   stall_box: chex.Array
   stall_m: chex.Array
   stall_covered: chex.Array
+  on_trail: chex.Array
   memory: Any = ()
   graph: Any = None
 
@@ -411,7 +414,7 @@ def reset(config: SimConfig, world: World, params: Params, key, start_pose=None)
       entropy=jnp.float32(h * w * mapping.LN2), covered=jnp.float32(0),
       done=jnp.bool_(False), reason=jnp.int32(RUNNING), collisions=jnp.int32(0),
       stall_box=jnp.concatenate([pose[:2], pose[:2]]), stall_m=jnp.float32(0),
-      stall_covered=jnp.float32(0),
+      stall_covered=jnp.float32(0), on_trail=jnp.bool_(False),
       memory=config.planner.initial_memory(planner_context(config), params),
       graph=(posegraph.init(pose, config.graph_nodes, config.graph_loops,
                             beams=config.n_beams if config.slam == "scan_matching" else 0)
@@ -664,7 +667,10 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   # from the centre made a waypoint beside the same wall "nearer" and cut every path there).
   here = cell_centre(cell_of(state.pose_est[:2], world.origin, res), world.origin, res)
   wall_here = believed_wall_distance_sq(config, world, params, state, here)
-  closes_in = has_waypoint & _within_radius(config, params, wall_ahead) & (wall_ahead < wall_here)
+  # (A path along the robot's own trail goes through such margins by design: the planner chose
+  # it because no other way led out.)
+  closes_in = (has_waypoint & ~state.on_trail & _within_radius(config, params, wall_ahead)
+               & (wall_ahead < wall_here))
   path_len = jnp.where(closes_in, path_idx, path_len)
   has_waypoint = has_waypoint & ~closes_in
   target = jnp.where(has_waypoint, target, state.look_at)
