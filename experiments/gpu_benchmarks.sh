@@ -29,7 +29,8 @@
 #                                                     # (fixed_leftovers: within the drift at
 #                                                     # 4,096 on an H100), against head
 #   bash experiments/gpu_benchmarks.sh lab OUT        # ~7 min: lab li2020 64 / 256, the landed
-#                                                     # changes undone, visible_by_depth
+#                                                     # changes undone, visible_by_depth (and
+#                                                     # visible, the region it is compared with)
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
 #
 # OUT defaults to experiments/results. Each part is a few command lines below; run them by hand
@@ -52,11 +53,12 @@ case "$part" in
     python experiments/bench_visible_blocks.py --blocks 8 --by-depth 32 64 128 --robots 4 64 \
       --out "$out/bench_visible_blocks_gpu.md"
     python experiments/bench_lockstep_variants.py --setting lab --robots 64 --steps 32 \
-      --chunk-steps 16 --variants visible_by_depth --out "$out/bench_lockstep_variants_lab_gpu.md"
+      --chunk-steps 16 --variants visible,visible_by_depth \
+      --out "$out/bench_lockstep_variants_lab_gpu.md"
     ;;
   lab)
     python experiments/bench_lockstep_variants.py --setting lab --robots 64,256 --steps 32 \
-      --chunk-steps 16 --variants fixed_chunks,tile_loop,visible_by_depth \
+      --chunk-steps 16 --variants fixed_chunks,tile_loop,visible,visible_by_depth \
       --out "$out/bench_lockstep_variants_lab_gpu.md" ;;
   stages)
     python experiments/stage_times.py --settings office,lab --strategies lockstep \
