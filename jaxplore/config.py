@@ -224,16 +224,16 @@ class SimConfig:
       declaration.check(getattr(self.sensor, name), f"sensor {self.sensor.name!r}: {name}")
     if self.map_hole_cells == -1:
       object.__setattr__(self, "map_hole_cells", MAP_HOLE_CELLS[self.slam])
-    if self.trail == -1:
-      object.__setattr__(self, "trail", TRAIL[self.slam])
-    if self.trail and not self.graph_nodes:
-      raise ConfigError("trail=1 plans along the keyframe trajectory of the robot's pose graph: "
-                        "it needs one (pose_graph=True, or slam='scan_matching')")
     if self.slam == "scan_matching":
       object.__setattr__(self, "pose_noise", True)
       if not self.graph_nodes:
         raise ConfigError("slam='scan_matching' keeps a pose graph: graph_nodes must be > 0 "
                           "(posegraph.keyframe_bound; jaxplore.resolve.resolve sets it)")
+    if self.trail == -1:
+      object.__setattr__(self, "trail", TRAIL[self.slam])
+    if self.trail and not self.graph_nodes:
+      raise ConfigError("trail=1 plans along the keyframe trajectory of the robot's pose graph: "
+                        "it needs one (pose_graph=True, or slam='scan_matching')")
 
   @property
   def n_epochs(self) -> int:
