@@ -1,8 +1,8 @@
 """Occupancy belief (log-odds), cell entropy, the entropy map, inflation and neighbourhood masks.
 
 Equations are Li et al. 2020's: cell entropy Eq 2, the smoothed entropy map Eq 3, the update radius
-``R_u = α·R_e`` (Eq 7). Neighbourhood sums use shifted slices of a framed array (measured ~50x
-faster than ``lax.conv_general_dilated`` on XLA:CPU).
+``R_u = α·R_e`` (Eq 7). Neighbourhood sums use shifted slices of a framed array (far faster than
+``lax.conv_general_dilated`` on XLA:CPU: ``experiments/results/design_notes_cpu.md``).
 """
 
 from __future__ import annotations
@@ -292,9 +292,9 @@ def per_robot(fn, lockstep: bool = False):
 
   Why not a plain ``vmap``: the per-robot work here is irregular. Under ``vmap`` a window at a
   per-robot offset becomes a gather and a scatter over the batch, a scatter into per-robot grids
-  costs ~5x more per element than one robot's, and a data-dependent loop (a lidar walk that stops
-  at the walls) runs for every robot until the slowest is done. One robot at a time, its maps
-  stay in cache and each loop stops when that robot is done.
+  costs several times more per element than one robot's, and a data-dependent loop (a lidar walk
+  that stops at the walls) runs for every robot until the slowest is done. One robot at a time, its
+  maps stay in cache and each loop stops when that robot is done.
 
   With ``lockstep`` (an accelerator: :func:`jaxplore.config.resolve_strategy`), ``vmap`` batches
   the one-robot update as it is, one kernel per stage for the whole batch: a loop over the

@@ -1,12 +1,12 @@
 """Arg-reductions over whole grids, in a form XLA:CPU runs fast.
 
-``jnp.argmin`` lowers to one *variadic* reduce over (value, index) pairs. XLA:CPU does not
-vectorise that reduce, and it fuses the whole computation producing the values into it, so a
-planner's score (frontier masks, distances, blocked bands: hundreds of operations per cell) is
-then evaluated one cell at a time: measured here, an argmin over 4 x 96 x 96 scores took 8x as
-long as computing the scores and reducing them with a plain ``min``. A plain ``min``/``max`` is
-vectorised; these functions reduce each row with it, take the variadic reduce only over the
-``H`` row results, and re-evaluate the values of the one chosen row.
+``jnp.argmin`` lowers to one *variadic* reduce over (value, index) pairs. XLA:CPU does not vectorise
+that reduce, and it fuses the whole computation producing the values into it, so a planner's score
+(frontier masks, distances, blocked bands: hundreds of operations per cell) is then evaluated one
+cell at a time, several times slower than computing the scores and reducing them with a plain
+``min`` (``experiments/results/design_notes_cpu.md``). A plain ``min``/``max`` is vectorised; these
+functions reduce each row with it, take the variadic reduce only over the ``H`` row results, and
+re-evaluate the values of the one chosen row.
 """
 
 from __future__ import annotations

@@ -22,14 +22,14 @@ A grid still unsettled after ``TILES_AFTER_ROUNDS`` rounds (a maze) is finished 
 (:func:`_finish_by_tiles`): in a round of a 256 x 256 maze only ~5 % of the cells change, yet
 the sweeps visit them all, so the rounds go on only inside the 16 x 16 tiles that a relaxation
 could still lower, least first, each settled by the same sweeps and check with its neighbours'
-edge cells held fixed. On the maze benchmark (``experiments/bench_dijkstra.py``) a grid takes
-6 rounds and then ~8 rounds' worth of tile visits, 3.5-5x sooner than the ~134 rounds of the
-sweeps alone.
+edge cells held fixed. On the maze benchmark (``experiments/bench_dijkstra.py``) a grid settles
+several times sooner that way than by the sweeps alone (the numbers:
+``experiments/results/design_notes_cpu.md``).
 
-On an accelerator the sweeps are a chain of tiny kernels (a line step each: ~2,800 launches a
-round on a 125 x 225 grid, measured on one H200). There the solver can instead relax every
-cell from its 8 neighbours at once, pass after pass (synchronous Bellman-Ford, *relaxation*,
-one fused kernel per pass; the fixed-point check every ``RELAXATION_PASSES_PER_CHECK`` passes).
+On an accelerator the sweeps are a chain of tiny kernels (a line step each: thousands of launches a
+round, ``experiments/results/design_notes_cpu.md``). There the solver can instead relax every cell
+from its 8 neighbours at once, pass after pass (synchronous Bellman-Ford, *relaxation*, one fused
+kernel per pass; the fixed-point check every ``RELAXATION_PASSES_PER_CHECK`` passes).
 
 All these schedules reach the same distances bit for bit: any order of these relaxations stops only
 at the fixed point, and the fixed point is unique: each cell's value is then the least float32
@@ -48,19 +48,20 @@ by a breadth-first search over tight equal-distance edges, each new cell pointin
 was attached in an earlier step, which keeps the tree acyclic. Maps without zero costs never
 enter that search.
 
-Performance notes (XLA:CPU, measured by ``experiments/bench_dijkstra.py``):
+Performance notes (XLA:CPU, measured by ``experiments/bench_dijkstra.py``; the numbers:
+``experiments/results/design_notes_cpu.md``):
 
 * A chunk of C grids is solved together in a ``[H + 2, W + 2, C]`` layout: the C maps are
   interleaved in the minor axis, framed by a border of blocked cells so that neighbour reads
   are plain slices. The sweeps update rows in place (``fori_loop`` + ``dynamic_update_slice``):
-  a ``lax.scan`` producing new rows was 2-3x slower per row, and tracking predecessor codes
-  during the sweeps tripled the cost of each row step.
+  a ``lax.scan`` producing new rows was slower per row, and tracking predecessor codes
+  during the sweeps multiplied the cost of each row step.
 * Column sweeps run on the transposed array; with C minor, that transpose moves C-float blocks
-  and is several times cheaper than transposing a ``[C, H, W]`` stack.
+  and is cheaper than transposing a ``[C, H, W]`` stack.
 * Unrolling the row loop (``fori_loop(..., unroll=k)``) made XLA copy the whole array at
-  every step, 10-100x slower.
+  every step, far slower.
 * Tile by tile, each step cuts its tiles' costs from the grid again: cutting them all once
-  and gathering 8 of them per step from the minor axis was ~1.7x slower on the maze benchmark.
+  and gathering 8 of them per step from the minor axis was slower on the maze benchmark.
   Taking more than ~2 tiles per grid per step visits more tiles before their inputs settle.
 * The distances alone are swept; predecessors come from one stencil pass at the end, since
   XLA:CPU has no multi-output loop fusion and a second output per row step costs a second
@@ -100,11 +101,10 @@ METHODS = ("sweeps", "relaxation")
 # A grid that the sweeps have not settled after this many rounds (a maze: its paths turn at
 # every corridor) is finished tile by tile (:func:`_finish_by_tiles`): tiles of TILE x TILE
 # cells, TILES_PER_STEP of every grid per step (measured best on a 256 x 256 maze, XLA:CPU).
-# After 6 rounds: room-like and real maps settle in ~3-6 and seldom get there; 256 x 256 mazes
-# with 3-cell corridors need 80-200 rounds by the sweeps alone, and 6 rounds then the tiles
-# finish them 3.5-5x sooner (after 4: a little sooner on mazes, ~10 % slower on willow, where a
-# few grids need 5-7 rounds; after 16: 1.2x slower on mazes). The built-in 200 x 200 maze
-# (12-cell corridors, 10-18 rounds) takes the same time either way.
+# After 6 rounds: room-like and real maps settle in about that many and seldom get there,
+# while mazes with 3-cell corridors need tens to hundreds of rounds by the sweeps alone and the
+# tiles finish them several times sooner; fewer rounds slowed willow, more slowed the mazes
+# (the numbers: experiments/results/design_notes_cpu.md).
 TILES_AFTER_ROUNDS = 6
 TILE = 16
 TILES_PER_STEP = 2
@@ -515,8 +515,8 @@ def shortest_paths_batched(
       the module docstring for which is faster where.
     tiles_after_rounds: static; with ``"sweeps"``, the whole-grid rounds after which a grid
       not yet settled is finished tile by tile (the same results, faster on narrow mazes);
-      0 = never, which also keeps the tiles' code out of the compiled program (~0.6 s of
-      XLA:CPU compile time per solver).
+      0 = never, which also keeps the tiles' code out of the compiled program (and its
+      compile time).
 
   Returns:
     A ``ShortestPaths`` whose fields have a leading batch axis B.

@@ -148,7 +148,7 @@ def clusters(mask: jax.Array, max_clusters: int, max_rounds: int | None = None) 
   is_root = in_mask & (roots == flat)
   slots = min(max_clusters, n)
   # top_k is stable: equal sizes come out in increasing flat index of their root. On float32
-  # XLA:CPU runs a dedicated top-k (~50x faster than on int32, which sorts everything); sizes
+  # XLA:CPU runs a dedicated top-k (far faster than on int32, which sorts everything); sizes
   # below 2^24 are exact in float32.
   top_score, top_root = lax.top_k(jnp.where(is_root, size_at_root, -1).astype(jnp.float32), slots)
   top_size = top_score.astype(jnp.int32)

@@ -425,7 +425,7 @@ class _MapImage:
         Image.MAX_IMAGE_PIXELS = bomb_limit
       channels = _PILLOW_CHANNELS[image.mode]
       # Classify each possible channel sum once, then look pixels up: float arithmetic per
-      # pixel costs ~1 s on the 6.8-Mpixel maps.
+      # pixel costs seconds on the largest public maps.
       lookup = _free_table(np.arange(255 * channels + 1) / channels, 255, negate, free_thresh)
       for row0 in range(0, self.height, rows):
         strip = image.crop((0, row0, self.width, min(self.height, row0 + rows)))
