@@ -45,8 +45,8 @@ def unexplored(config: SimConfig, unknown):
 
 
 # Points sampled on each segment of the keyframe trajectory (:func:`trail_cells`): 16 keep them
-# at most half a cell apart on a segment of 8 cells (keyframes are ``kf_dist``, 0.3 m by default,
-# apart: 1.5 cells at 0.2 m, 6 at 0.05 m).
+# about half a cell apart on a segment of 8 cells (keyframes are ``kf_dist``, 0.3 m by default,
+# apart: 1.5 cells at 0.2 m, 6 at 0.05 m); a longer segment's cells may have gaps.
 TRAIL_SAMPLES = 16
 
 
