@@ -355,6 +355,25 @@ def test_gain_per_metre_weighs_what_a_path_adds_to_the_robots_own_region():
   np.testing.assert_allclose(float(plan.gain), added, rtol=1e-4)
 
 
+@pytest.mark.parametrize("region", ["beams", "visible", "disc"])
+def test_gain_per_metre_never_takes_a_step_of_a_few_cells_while_a_farther_frontier_gains(region):
+  """Issue 41's select=1 stall, in each gain region: entropy left in the robot's own region (no
+  scan from where it stands removed it) and a frontier 2 m away. A path shorter than a few cells
+  adds nothing to the robot's own region (P_0's, whose scan is in the maps: Li's Figure 5,
+  Algorithm 1 line 2), so gain per metre takes the farther path. Counted at the root, that
+  entropy made a one-cell step score it over 0.1 m (lab, robot seeds 0-3: all four timed out at
+  0.66-0.99 coverage before d5b3007)."""
+  params = params_for(select=1.0)
+  ctx = dataclasses.replace(CONFIG, settings=dataclasses.replace(SETTINGS, region=region))
+  l, entropy = open_room((12, 5), 3.0)
+  view = make_view(l, entropy, params)
+  plan, _ = PLAN(ctx, view, robot_at((12, 5), theta=0.0), params, jax.random.PRNGKey(0),
+                 memory_for(ctx, params, entropy))
+  n = int(plan.length)
+  assert bool(plan.valid) and n > 5 and np.asarray(plan.waypoints)[n - 1][1] >= 20
+  assert float(plan.gain) > 0.5
+
+
 def test_entropy_left_only_where_the_robot_stands_leads_to_the_reexplore_fallback():
   """Algorithm 1, lines 19-21, on a hand-made room: every candidate path is cut (Eq 18-19) about
   a metre out, short of the unknown space, and the only entropy the cut paths reach is the
