@@ -12,7 +12,12 @@ Usage:
   python experiments/srt_trace.py --maps corridor,loop_with_corridor --seeds 0,1,2,3,4
   python experiments/srt_trace.py --maps corridor --seeds 0,1 --planner-set d_min=2.0
 Appends one row per run to experiments/results/srt_trace.md (``--save-npz DIR`` also keeps the
-per-step arrays).
+per-step arrays; ``--no-record`` appends nothing).
+
+Whether a change alters SRT's episodes, and from where: trace the same runs with the package
+before and after it (``PYTHONPATH`` pointing at two checkouts, ``--save-npz`` to two folders,
+``--no-record``), then ``--compare DIR_A DIR_B`` prints, per run, the first step at which the two
+differ (pose, node count, current node, mode, decisions, turn) and what each did there.
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ def tracer(map_label: str, max_steps: int, planner: str = "srt", planner_params=
       state, _ = sim.step(config, world, params, state)
       m = state.memory
       row = (m.count, m.current, m.mode, m.decisions, m.turn, state.covered, state.time,
-             state.distance, state.done)
+             state.distance, state.done, state.pose)
       return state, row
     return jax.lax.scan(body, state, None, length=chunk)
 
@@ -66,7 +71,7 @@ def tracer(map_label: str, max_steps: int, planner: str = "srt", planner_params=
       state, row = advance(state)
       rows.append(jax.tree.map(np.asarray, row))
     names = ("count", "current", "mode", "decisions", "turn", "covered", "time", "distance",
-             "done")
+             "done", "pose")
     out = {k: np.concatenate([r[i] for r in rows]) for i, k in enumerate(names)}
     last = int(np.argmax(out["done"])) + 1 if out["done"].any() else max_steps
     out = {k: v[:last] for k, v in out.items()}
@@ -123,6 +128,34 @@ def row(map_label: str, seed: int, settings: str, s: dict) -> str:
           f"({100 * s['after_t99_steps'] / s['steps']:.0f} %), {s['after_t99_nodes']} |")
 
 
+def compare(dir_a: str, dir_b: str) -> list[str]:
+  """Per run saved in both folders: the first step at which the two episodes differ."""
+  import numpy as np
+
+  from jaxplore.planners import reg
+  keys = ("pose", "count", "current", "mode", "decisions", "turn")
+  lines = []
+  for path_a in sorted(Path(dir_a).glob("*.npz")):
+    path_b = Path(dir_b) / path_a.name
+    if not path_b.exists():
+      continue
+    a, b = np.load(path_a), np.load(path_b)
+    n = min(len(a["mode"]), len(b["mode"]))
+    differs = np.zeros(n, bool)
+    for k in keys:
+      differs |= np.any((a[k][:n] != b[k][:n]).reshape(n, -1), axis=1)
+    what = lambda t, i: (f"{reg.MODES[int(t['mode'][i])]}{' (turn)' if t['turn'][i] else ''}, "
+                         f"node {int(t['current'][i])} of {int(t['count'][i])}")
+    if differs.any():
+      i = int(np.argmax(differs))
+      where = (f"first differs at step {i} (coverage {100 * a['coverage'][i]:.1f} %): "
+               f"A {what(a, i)}; B {what(b, i)}")
+    else:
+      where = f"identical over {n} steps"
+    lines.append(f"{path_a.stem}: A {len(a['mode'])} steps, B {len(b['mode'])} steps; {where}")
+  return lines
+
+
 def main(argv=None):
   import numpy as np
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -132,10 +165,17 @@ def main(argv=None):
   parser.add_argument("--planner", default="srt")
   parser.add_argument("--planner-set", action="append", default=[], metavar="NAME=VALUE")
   parser.add_argument("--save-npz", default=None, metavar="DIR")
+  parser.add_argument("--no-record", action="store_true",
+                      help="append nothing to results/srt_trace.md")
+  parser.add_argument("--compare", nargs=2, default=None, metavar=("DIR_A", "DIR_B"),
+                      help="compare the runs saved (--save-npz) in two folders and exit")
   args = parser.parse_args(argv)
+  if args.compare:
+    print("\n".join(compare(*args.compare)))
+    return
   planner_params = {k: float(v) for k, v in (s.split("=") for s in args.planner_set)}
   settings = ", ".join(args.planner_set)
-  if not RESULTS.exists():
+  if not RESULTS.exists() and not args.no_record:
     RESULTS.write_text("SRT episodes step by step (experiments/srt_trace.py; pose noise on, "
                        "`toriz` preset, robot seed i as in toriz_tables.py)\n\n" + HEADER + "\n")
   for map_label in args.maps.split(","):
@@ -147,8 +187,9 @@ def main(argv=None):
         Path(args.save_npz).mkdir(parents=True, exist_ok=True)
         np.savez_compressed(Path(args.save_npz) / f"{map_label}_{args.planner}_s{seed}.npz", **t)
       line = row(map_label, seed, settings, summary(t))
-      with RESULTS.open("a") as f:
-        f.write(line + "\n")
+      if not args.no_record:
+        with RESULTS.open("a") as f:
+          f.write(line + "\n")
       print(line, f"({time.perf_counter() - t0:.0f} s wall)", flush=True)
 
 
