@@ -9,7 +9,10 @@ with Karto's settings from the authors' configuration:
   displacement is at most the distance and turn travelled, which gives a run's keyframe count an
   a-priori bound (:func:`keyframe_bound`);
 * an odometry edge from the previous keyframe, of covariance ``σ_sm²·I`` (the scan matcher) plus
-  the odometry covariance ``V_n`` (Li Eq 16) accumulated since that keyframe;
+  the covariance of the simulated odometry error accumulated since that keyframe (Li Eq 16's
+  form with the ``odom_noise_*`` scales, not Li's planning ``V_n``); under the
+  ``scan_matching`` model the edge carries the scan match's covariance instead
+  (:mod:`jaxplore.slam.model`);
 * a loop-closure edge when a new keyframe is within ``loop_radius`` of a keyframe at least
   ``loop_min_age`` keyframes older whose heading differs by at most ``loop_max_turn``, with a
   free line of sight between the two in the belief: the nearest such keyframe only (among the 4
@@ -207,7 +210,8 @@ def observe(graph: PoseGraph, pose, v_n, increment, active, logodds, origin, res
   Args:
     graph: the robot's graph.
     pose: f32[3] the robot's estimated pose after the step.
-    v_n: f32[3, 3] the step's odometry covariance (Li Eq 16).
+    v_n: f32[3, 3] the step's odometry covariance: the simulated odometry error's (Li Eq 16's
+      form, ``odom_noise_*``), which the engine passes.
     increment: f32[3] the step's odometry (x, y, θ in the frame before the step; Li Eq 9).
     active: bool; the robot moved or turned (an inactive step changes nothing).
     logodds: f32[H, W] the belief (loop-closure line of sight).
