@@ -329,9 +329,12 @@ class Params:
                                 "slam_min_angle)", owner="slam", unit="rad", gt=0, le=math.pi)
   loop_min_response: Any = setting(0.45, "a weaker loop closure is refused "
                                    "(loop_match_minimum_response_fine)", owner="slam", ge=0, le=1)
-  loop_max_variance: Any = setting(3.0, "a loop closure's match with a larger variance is "
-                                   "refused (loop_match_maximum_variance_coarse)", owner="slam",
-                                   unit="m²", gt=0)
+  # Not Karto's 3.0 (loop_match_maximum_variance_coarse, for its sharp 8 m window at 5 cm): on
+  # our blunter 5-20 cm fields a larger variance marks an aliased place (doors alike along a
+  # corridor), where closures were a metre off (experiments/results/slam_closure_audit.md).
+  loop_max_variance: Any = setting(0.09, "a loop closure's match with a larger positional "
+                                   "variance is refused (0.09: a standard deviation of 0.3 m)",
+                                   owner="slam", unit="m²", gt=0)
   # Not Karto's (its 8 m window has no such gate); a closure whose own bound this far excludes
   # the truth is counted false.
   loop_gate: Any = setting(11.34, "a closure's pose must lie within this Mahalanobis distance² "

@@ -1,0 +1,179 @@
+"""The scan_matching SLAM model's keyframe edges and loop closures, audited against the truth.
+
+One batch of robots (nearest frontier, seed 0, one device) stepped a chunk at a time; at the end,
+every loop closure is compared with the truth's relative pose (its translation and heading error,
+beside the match's own standard deviations and the drift covariance that sized and gated its
+search, read at the chunk before it closed), and the chain of odometry edges is checked for
+calibration: the normalised estimation error squared (NEES) of each edge (1 per component if its
+covariance is honest) and the heading drift over windows of ``--window`` edges, actual against
+what the edges' covariances claim when compounded as independent measurements.
+
+A closure is *bad* here when its measured relative pose is off by more than ``--bad-m`` metres or
+``--bad-deg`` degrees (the ``false`` column of the results is a different test: the truth outside
+the closure's own 99 % bound). The table of thresholds on the match's positional standard
+deviation shows how many good and bad closures each would keep.
+
+Usage:
+  python experiments/slam_closure_audit.py --world willow --robots 4 --epochs 500
+  python experiments/slam_closure_audit.py --world intel --robots 4 --epochs 500 \
+      --set loop_max_variance=3.0
+Prints markdown; ``--out FILE`` also writes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SHARED_MAPS = HERE.parent.parent / "shared" / "maps"
+WORLDS = {"willow": str(SHARED_MAPS / "willow.yaml"), "intel": str(SHARED_MAPS / "intel.yaml")}
+RES = {"willow": 0.2, "intel": 0.2}
+SD_THRESHOLDS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 1.0)
+
+
+def _wrap(a):
+  return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _between(a, b):
+  """b in a's frame, numpy (rows of poses)."""
+  a, b = np.atleast_2d(a), np.atleast_2d(b)
+  c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+  dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+  return np.stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[:, 2] - a[:, 2])], -1)
+
+
+def simulate(world: str, robots: int, epochs: int, settings: dict):
+  """The final pose graphs and, per chunk, each robot's loop count, drift covariance and pose
+  error."""
+  import jax
+
+  from jaxplore import driver, sim
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+
+  resolved = resolve(RunSpec.create(world=WORLDS.get(world, world), res=RES.get(world),
+                                    robots=robots, planner="nearest_frontier", seed=0,
+                                    slam="scan_matching", params=settings or None))
+  config = resolved.config
+  params = sim.broadcast_params(resolved.params, robots)
+  keys = jax.random.split(jax.random.PRNGKey(0), robots)
+  state = sim.reset_batch(config, resolved.world, params, keys, None)
+  advance = driver.compiled_advance(config, 1, 1)
+  log = []
+  for _ in range(min(epochs, config.n_epochs)):
+    state, _ = advance(resolved.world, params, state)
+    pose, est = np.asarray(state.pose), np.asarray(state.pose_est)
+    log.append(dict(n_loops=np.asarray(state.graph.n_loops).copy(),
+                    drift=np.asarray(state.graph.drift_cov).copy(),
+                    pose_error=np.hypot(*(pose[:, :2] - est[:, :2]).T)))
+    if bool(np.all(np.asarray(state.done))):
+      break
+  return jax.tree.map(np.asarray, state.graph), log
+
+
+def audit(graph, log, bad_m: float, bad_deg: float, window: int):
+  """The closures (list of dicts) and the chain's calibration per robot (list of dicts)."""
+  closures, chains = [], []
+  n_robots = graph.n_nodes.shape[0]
+  for r in range(n_robots):
+    n = int(graph.n_nodes[r])
+    truth = _between(graph.truth[r, :n - 1], graph.truth[r, 1:n])
+    err = graph.chain_measured[r, 1:n] - truth
+    err[:, 2] = _wrap(err[:, 2])
+    cov = np.linalg.inv(graph.chain_info[r, 1:n].astype(np.float64))
+    nees_theta = err[:, 2] ** 2 / cov[:, 2, 2]
+    nees_xy = np.einsum("ni,nij,nj->n", err[:, :2], np.linalg.inv(cov[:, :2, :2]), err[:, :2])
+    summed = np.concatenate([[0.0], np.cumsum(err[:, 2])])
+    claimed = np.concatenate([[0.0], np.cumsum(cov[:, 2, 2])])
+    w = min(window, n - 1)
+    actual = summed[w:] - summed[:-w]
+    chains.append(dict(robot=r, edges=n - 1, nees_xy=nees_xy.mean(), nees_theta=nees_theta.mean(),
+                       drift_actual_deg=np.degrees(np.sqrt(np.mean(actual ** 2))),
+                       drift_claimed_deg=np.degrees(np.sqrt(np.mean(claimed[w:] - claimed[:-w])))))
+    for j in range(int(graph.n_loops[r])):
+      older, newer = graph.loops[r, j]
+      e = graph.loop_measured[r, j] - _between(graph.truth[r, older], graph.truth[r, newer])[0]
+      e[2] = _wrap(e[2])
+      lcov = np.linalg.inv(graph.loop_info[r, j].astype(np.float64))
+      chunk = next((k for k, row in enumerate(log) if row["n_loops"][r] > j), len(log) - 1)
+      drift = log[max(chunk - 1, 0)]["drift"][r]
+      closures.append(dict(
+          robot=r, loop=j, older=int(older), newer=int(newer), chunk=chunk,
+          error_m=float(np.hypot(e[0], e[1])), error_deg=float(np.degrees(e[2])),
+          match_sd_m=float(np.sqrt(np.linalg.eigvalsh(lcov[:2, :2]).max())),
+          match_sd_deg=float(np.degrees(np.sqrt(lcov[2, 2]))),
+          drift_sd_m=float(np.sqrt(max(drift[0, 0], drift[1, 1]))),
+          drift_sd_deg=float(np.degrees(np.sqrt(drift[2, 2]))),
+          false=bool(graph.loop_false[r, j]),
+          bad=bool(np.hypot(e[0], e[1]) > bad_m or abs(np.degrees(e[2])) > bad_deg),
+          pose_error_before=float(log[max(chunk - 1, 0)]["pose_error"][r]),
+          pose_error_after=float(log[chunk]["pose_error"][r])))
+  return closures, chains
+
+
+def report(closures, chains, log, header: str, bad_m: float, bad_deg: float) -> str:
+  pose_error = np.stack([row["pose_error"] for row in log])
+  lines = [header, "",
+           f"Pose error over every chunk of every robot: mean {pose_error.mean():.3f} m, "
+           f"95th percentile {np.percentile(pose_error, 95):.2f} m, max {pose_error.max():.2f} m; "
+           "final per robot " + ", ".join(f"{x:.2f}" for x in pose_error[-1]) + " m.", "",
+           "## The chain of odometry edges", "",
+           "| robot | edges | NEES x-y (2 if honest) | NEES θ (1) | heading drift over the window:"
+           " actual rms ° | claimed (independent edges) ° |", "|---:|---:|---:|---:|---:|---:|"]
+  for c in chains:
+    lines.append(f"| {c['robot']} | {c['edges']} | {c['nees_xy']:.2f} | {c['nees_theta']:.2f} | "
+                 f"{c['drift_actual_deg']:.2f} | {c['drift_claimed_deg']:.2f} |")
+  bad = [c for c in closures if c["bad"]]
+  lines += ["", f"## Loop closures: {len(closures)}, of which {len(bad)} bad (> {bad_m} m or "
+            f"> {bad_deg}°), {sum(c['false'] for c in closures)} false", "",
+            "| match positional sd at most (m) | good kept | bad kept |", "|---:|---:|---:|"]
+  n_good = len(closures) - len(bad)
+  for th in SD_THRESHOLDS:
+    kept = [c for c in closures if c["match_sd_m"] <= th]
+    lines.append(f"| {th} | {sum(not c['bad'] for c in kept)} / {n_good} | "
+                 f"{sum(c['bad'] for c in kept)} / {len(bad)} |")
+  lines += ["", "The bad closures:", "",
+            "| robot | keyframes | chunk | error m | error ° | match sd m / ° | drift sd m / ° | "
+            "false | pose error before -> after m |", "|---:|---|---:|---:|---:|---|---|---|---|"]
+  for c in bad:
+    lines.append(f"| {c['robot']} | {c['older']} -> {c['newer']} | {c['chunk']} | "
+                 f"{c['error_m']:.2f} | {c['error_deg']:.1f} | {c['match_sd_m']:.2f} / "
+                 f"{c['match_sd_deg']:.1f} | {c['drift_sd_m']:.2f} / {c['drift_sd_deg']:.1f} | "
+                 f"{c['false']} | {c['pose_error_before']:.2f} -> {c['pose_error_after']:.2f} |")
+  return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument("--world", default="willow")
+  parser.add_argument("--robots", type=int, default=4)
+  parser.add_argument("--epochs", type=int, default=500, help="planning rounds to run at most")
+  parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
+  parser.add_argument("--bad-m", type=float, default=0.3)
+  parser.add_argument("--bad-deg", type=float, default=4.0)
+  parser.add_argument("--window", type=int, default=150, help="edges per heading-drift window")
+  parser.add_argument("--out", default=None)
+  args = parser.parse_args(argv)
+  settings = {}
+  for item in args.set:
+    name, _, value = item.partition("=")
+    settings[name.strip()] = float(value)
+  started = time.time()
+  graph, log = simulate(args.world, args.robots, args.epochs, settings)
+  closures, chains = audit(graph, log, args.bad_m, args.bad_deg, args.window)
+  command = (f"python experiments/slam_closure_audit.py --world {args.world} --robots "
+             f"{args.robots} --epochs {args.epochs}" + "".join(f" --set {s}" for s in args.set))
+  text = report(closures, chains, log, f"# `{command}` ({len(log)} chunks, "
+                f"{time.time() - started:.0f} s)", args.bad_m, args.bad_deg)
+  print(text)
+  if args.out:
+    Path(args.out).write_text(text)
+
+
+if __name__ == "__main__":
+  main()
