@@ -171,35 +171,6 @@ def test_li2020_plans_alike_in_both_strategies(rooms):
   assert_same_across_strategies(finals[0], finals[1])
 
 
-# The engine's own parameters and li2020's weights (its entropy map's among them); every
-# planner's weights alone are checked by tests/planners/test_conformance.py. The batch is
-# tests/test_sweep.py's (its SETTINGS, a chunk of 3 robots, the chunk's planning rounds): the
-# engine program that module compiles first is loaded from the suite's compilation cache, not
-# compiled again (~30 s; a retrace is counted by this test's own jit all the same).
-@pytest.mark.parametrize("planner", ["li2020"])
-def test_changing_a_traced_parameter_does_not_retrace(planner):
-  from jaxplore import driver
-  from jaxplore.resolve import resolve
-  from jaxplore.runspec import RunSpec
-  resolved = resolve(RunSpec(world="open", res=0.5, planner=planner, max_steps=30, replan_every=5,
-                             params={"r_max": 2.0}, robots=3))
-  config, world = resolved.config, resolved.world
-  params = resolved.batch().params
-  keys = jax.random.split(jax.random.PRNGKey(1), 3)
-  state = sim.reset_batch(config, world, params, keys)
-  chex.clear_trace_counter()
-  advance = jax.jit(chex.assert_max_traces(sim.advance_unjitted, n=1), static_argnames=("config", "n_epochs"))
-  n_epochs = driver.chunk_epochs_for(config, None)
-  advance(config, world, params, state, n_epochs=n_epochs)
-  # All at once: any one of them compiled in as a constant would make this call retrace.
-  changes = {"v_max": 0.4, "r_max": 1.5, "l_free": -0.5}
-  changed = params.replace(**{name: jnp.full((3,), value, jnp.float32)
-                              for name, value in changes.items()},
-                           planner={name: value * 0.5 for name, value in params.planner.items()})
-  out, _ = advance(config, world, changed, state, n_epochs=n_epochs)
-  jax.block_until_ready(out)
-
-
 def test_a_room_behind_a_gap_narrower_than_the_robot_is_not_counted_and_the_run_completes():
   # Right room reachable only through a 0.2 m slit: the 0.2 m-radius robot cannot pass. Coverage
   # counted the room, so every such run ended `exhausted` (0.51-0.65 on real maps); it is now of

@@ -17,7 +17,9 @@ import sys
 import textwrap
 import time
 
+import chex
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
@@ -114,6 +116,36 @@ def test_chunks_share_one_compiled_program_and_tables_cover_every_row(reference)
   (out / "sweep.png").unlink()
   assert cli.main(["plot", str(out)]) == 0
   assert (out / "sweep.png").exists()
+
+
+# The engine's own parameters and li2020's weights (its entropy map's among them); every
+# planner's weights alone are checked by tests/planners/test_conformance.py. The batch is this
+# module's (SETTINGS, a chunk of 3 robots, the chunk's planning rounds): the engine program the
+# reference sweep compiles (this test asks for it, so it is built first, in this process) is
+# loaded from the suite's compilation cache, not compiled again (~13 s on 2 idle cores; it was
+# in tests/test_sim.py, on the other xdist worker, and compiled its own while this module's
+# was not yet there); a retrace is counted by this test's own jit all the same.
+@pytest.mark.parametrize("planner", ["li2020"])
+def test_changing_a_traced_parameter_does_not_retrace(planner, reference):
+  from jaxplore import driver
+  resolved = resolve(RunSpec(world="open", res=0.5, planner=planner, max_steps=30, replan_every=5,
+                             params={"r_max": 2.0}, robots=3))
+  config, world = resolved.config, resolved.world
+  params = resolved.batch().params
+  keys = jax.random.split(jax.random.PRNGKey(1), 3)
+  state = sim.reset_batch(config, world, params, keys)
+  chex.clear_trace_counter()
+  advance = jax.jit(chex.assert_max_traces(sim.advance_unjitted, n=1),
+                    static_argnames=("config", "n_epochs"))
+  n_epochs = driver.chunk_epochs_for(config, None)
+  advance(config, world, params, state, n_epochs=n_epochs)
+  # All at once: any one of them compiled in as a constant would make this call retrace.
+  changes = {"v_max": 0.4, "r_max": 1.5, "l_free": -0.5}
+  changed = params.replace(**{name: jnp.full((3,), value, jnp.float32)
+                              for name, value in changes.items()},
+                           planner={name: value * 0.5 for name, value in params.planner.items()})
+  out, _ = advance(config, world, changed, state, n_epochs=n_epochs)
+  jax.block_until_ready(out)
 
 
 def _interrupt_second_chunk(monkeypatch):
