@@ -35,16 +35,14 @@ RES = {"willow": 0.2, "intel": 0.2}
 SD_THRESHOLDS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 1.0)
 
 
-def _wrap(a):
-  return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def _between(a, b):
-  """b in a's frame, numpy (rows of poses)."""
-  a, b = np.atleast_2d(a), np.atleast_2d(b)
-  c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-  dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-  return np.stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[:, 2] - a[:, 2])], -1)
+  """Each pose of ``b`` in the frame of the matching pose of ``a`` (rows of poses, numpy):
+  :func:`jaxplore.motion.between` over the rows."""
+  import jax
+
+  from jaxplore import motion
+  return np.asarray(jax.vmap(motion.between)(np.atleast_2d(a).astype(np.float32),
+                                             np.atleast_2d(b).astype(np.float32)))
 
 
 def simulate(world: str, robots: int, epochs: int, settings: dict):
@@ -84,7 +82,7 @@ def audit(graph, log, bad_m: float, bad_deg: float, window: int):
     n = int(graph.n_nodes[r])
     truth = _between(graph.truth[r, :n - 1], graph.truth[r, 1:n])
     err = graph.chain_measured[r, 1:n] - truth
-    err[:, 2] = _wrap(err[:, 2])
+    err[:, 2] = (err[:, 2] + np.pi) % (2 * np.pi) - np.pi
     cov = np.linalg.inv(graph.chain_info[r, 1:n].astype(np.float64))
     nees_theta = err[:, 2] ** 2 / cov[:, 2, 2]
     nees_xy = np.einsum("ni,nij,nj->n", err[:, :2], np.linalg.inv(cov[:, :2, :2]), err[:, :2])
@@ -98,7 +96,7 @@ def audit(graph, log, bad_m: float, bad_deg: float, window: int):
     for j in range(int(graph.n_loops[r])):
       older, newer = graph.loops[r, j]
       e = graph.loop_measured[r, j] - _between(graph.truth[r, older], graph.truth[r, newer])[0]
-      e[2] = _wrap(e[2])
+      e[2] = (e[2] + np.pi) % (2 * np.pi) - np.pi
       lcov = np.linalg.inv(graph.loop_info[r, j].astype(np.float64))
       chunk = next((k for k, row in enumerate(log) if row["n_loops"][r] > j), len(log) - 1)
       drift = log[max(chunk - 1, 0)]["drift"][r]
