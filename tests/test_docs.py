@@ -72,7 +72,10 @@ def test_the_tutorial_planner_is_a_plugin_the_cli_lists_and_checks(tmp_path, mon
   from jaxplore.resolve import resolve
   from jaxplore.runspec import RunSpec
   path = _tutorial_planner(tmp_path)
-  monkeypatch.delenv(base.PLUGINS_ENV, raising=False)
+  # setenv, not delenv: the --plugin below writes the variable, and monkeypatch restores only
+  # what it recorded (a delenv of an absent variable records nothing), so the planner would come
+  # back for the next test of this process that reads the registry
+  monkeypatch.setenv(base.PLUGINS_ENV, "")
   try:
     assert cli.main(["--plugin", str(path), "settings", "--planner", "far_frontier"]) == 0
     out = capsys.readouterr().out
