@@ -58,6 +58,8 @@ def main(argv=None):
 
   import jaxplore
 
+  out = Path(args.out)
+  out.parent.mkdir(parents=True, exist_ok=True)  # before the runs: their results are not lost
   settings = {}
   for item in args.set:
     name, _, value = item.partition("=")
@@ -85,7 +87,6 @@ def main(argv=None):
       rows.append(row)
       print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
   table = pd.DataFrame(rows)
-  out = Path(args.out)
   pd.concat(episodes).to_csv(out.with_name(out.name + "_episodes.csv"), index=False)
   # The figure shows the default scan_matching model: not drawn for an ablation (--set).
   figure = (closure_figure(args.figure_world, out.with_name(out.name + "_closure.png"))
