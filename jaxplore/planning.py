@@ -71,8 +71,8 @@ def trail_cells(config: SimConfig, world: World, state: State):
   return cells.reshape(-1, 2)
 
 
-def belief_view(config: SimConfig, params: Params, state: State, robot_cell, trail=None
-                ) -> planners_base.BeliefView:
+def belief_view(config: SimConfig, params: Params, state: State, robot_cell, trail=None,
+                inflate: bool = True) -> planners_base.BeliefView:
   """The planner's view of one robot's belief (masks computed once per planning round).
 
   Traversable cells are free cells clear of believed walls by the robot radius, plus an escape
@@ -84,12 +84,13 @@ def belief_view(config: SimConfig, params: Params, state: State, robot_cell, tra
   ``trail`` (cells, i32[K, 2], in the view's coordinates: :func:`trail_cells`), the free cells
   the robot has driven through are traversable too: under SLAM a wall drawn a cell off by a
   keyframe's few centimetres of pose error closes a passage of three or four cells to the
-  inflated belief, and a robot that went through one could otherwise never come back.
+  inflated belief, and a robot that went through one could otherwise never come back. Without
+  ``inflate`` every free cell is traversable (the last recovery, :func:`_recover`).
   """
   free, occupied, unknown = mapping.classify(state.logodds, params)
   wall_distance_sq = mapping.distance_sq_within(occupied, config.max_inflation_cells)
   inflated = mapping.within_radius(wall_distance_sq.astype(jnp.float32),
-                                   params.r_robot / config.res)
+                                   params.r_robot / config.res if inflate else 0.0)
   escape_zone = free & inflated
   # A cell off the grid (an estimate beyond the edge) starts no route: dropped, not wrapped.
   escape = jnp.zeros(free.shape, bool).at[robot_cell[0], robot_cell[1]].set(
@@ -142,7 +143,8 @@ def crop_maps(state: State, origin, shape) -> State:
   return state.replace(**{name: crop(getattr(state, name)) for name in _MAP_FIELDS})
 
 
-def _propose(config: SimConfig, params: Params, state: State, robot, origin, key, trail=None):
+def _propose(config: SimConfig, params: Params, state: State, robot, origin, key, trail=None,
+             inflate: bool = True):
   """The planner's plan on the region of the grid that ``state``'s maps hold, at ``origin``.
 
   Returns (plan in grid coordinates, new memory, certified). The region is the whole grid (a
@@ -153,7 +155,8 @@ def _propose(config: SimConfig, params: Params, state: State, robot, origin, key
   shape = state.logodds.shape
   ctx = planner_context(config, shape)
   cell = robot.cell - origin
-  view = belief_view(config, params, state, cell, None if trail is None else trail - origin[None])
+  view = belief_view(config, params, state, cell, None if trail is None else trail - origin[None],
+                     inflate)
   whole_grid = shape == (config.height, config.width)
   if not whole_grid:
     view, edge = planning_window.restrict(view, cell, origin, (config.height, config.width),
@@ -195,7 +198,7 @@ class PlanOutcome:
 
 
 def _plan_round(config: SimConfig, world: World, params: Params, state: State, origin,
-                use_trail: bool = False) -> PlanOutcome:
+                recovery: int = 0) -> PlanOutcome:
   """One robot's planning round on the region of the grid that ``state``'s maps hold.
 
   ``state`` is one robot's state whose map leaves are the whole grid (``origin`` = (0, 0)) or,
@@ -205,8 +208,9 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
   robot waits on it forever; so are the cells around the goal of a robot that has stalled
   (driven ``stall_m`` without leaving ``stall_span`` or gaining a free cell:
   :func:`jaxplore.robot._watch_stall`), as explore_lite blacklists a goal with a tolerance of
-  :data:`STALL_BLACKLIST_CELLS` cells. ``use_trail``: the robot may plan along its keyframe
-  trajectory (:func:`belief_view`).
+  :data:`STALL_BLACKLIST_CELLS` cells. ``recovery`` (:func:`_recover`): 1, the robot may plan
+  along its keyframe trajectory (:func:`belief_view`); 2, and through every free cell of its
+  belief, its radius ignored.
   """
   spec = config.planner
   key, k_plan = jax.random.split(state.key)
@@ -227,8 +231,9 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
           stalled, mode="drop", wrap_negative_indices=False),
       stall_m=jnp.where(stalled, 0.0, state.stall_m))
   robot = robot_view(config, world, state)
-  trail = trail_cells(config, world, state) if use_trail else None
-  result, memory, certified = _propose(config, params, state, robot, origin, k_plan, trail)
+  trail = trail_cells(config, world, state) if recovery else None
+  result, memory, certified = _propose(config, params, state, robot, origin, k_plan, trail,
+                                       inflate=recovery < 2)
   stuck = running & result.valid & (result.length <= 1) & jnp.all(result.goal == state.last_goal)
   exhausted = running & ~result.valid
   install = running & result.valid
@@ -240,7 +245,7 @@ def _plan_round(config: SimConfig, world: World, params: Params, state: State, o
       goal=jnp.where(install, result.goal, state.goal),
       look_at=jnp.where(install, result.look_at, robot.cell),
       last_goal=jnp.where(install, result.goal, state.last_goal),
-      on_trail=jnp.where(install, use_trail, state.on_trail),
+      on_trail=jnp.where(install, recovery > 0, state.on_trail),
       done=state.done | exhausted,
       reason=jnp.where(exhausted, EXHAUSTED, state.reason),
       memory=jax.tree.map(lambda new, old: jnp.where(running, new, old), memory, state.memory))
@@ -269,26 +274,43 @@ def _apply_plans(state: State, robots, outcome: PlanOutcome) -> State:
   return state.replace(blacklist=blacklist, **small)
 
 
-def _retry_on_trail(config: SimConfig, outcome: PlanOutcome, was_done, replan) -> PlanOutcome:
+# The recoveries a robot that found nothing on its belief tries before it gives up
+# (:func:`_recover`): its keyframe trail, then every free cell its radius ignored.
+RECOVERIES = (1, 2)
+
+
+def _recover(config: SimConfig, outcome: PlanOutcome, was_done, replan,
+             recoveries: tuple[int, ...] = RECOVERIES) -> PlanOutcome:
   """``outcome``, but where a robot ended ``exhausted`` (found nothing on its belief), the
-  outcome of ``replan()``, the same round along its keyframe trail (``config.trail``): as a
-  navigation stack's recovery tries before it gives up. ``was_done``: the robots' ``done`` before
-  the round. Only a round with such a robot runs ``replan`` (a batch-level ``cond``)."""
+  outcome of ``replan(recovery)`` for each of :data:`RECOVERIES` in turn until one finds a plan
+  (``config.trail``; :func:`_plan_round`), as a navigation stack's recoveries clear its costmap
+  before it gives up: the same round along the robot's keyframe trail, then through every free
+  cell of its belief, its radius ignored (under SLAM a wall drawn a cell off narrows a door of
+  three or four cells to nothing once inflated; the robot's collisions with the true walls
+  still stop it). ``was_done``: the robots' ``done`` before the round. Only a round with such a
+  robot runs ``replan`` (a batch-level ``cond``). A window's round tries the trail only: a
+  window without a frontier is no reason to squeeze through its narrow places, the whole grid
+  is planned next (with every free cell in a window, robots on `intel` took the narrow way to
+  the nearest frontier again and again, and ten of sixteen ended shut in, against one)."""
   if not config.trail:
     return outcome
-  retry = outcome.state.done & ~was_done & (outcome.state.reason == EXHAUSTED)
-  pick = lambda new, old: jnp.where(retry.reshape(retry.shape + (1,) * (new.ndim - retry.ndim)),
-                                    new, old)
-  return jax.lax.cond(jnp.any(retry), lambda: jax.tree.map(pick, replan(), outcome),
-                      lambda: outcome)
+  for recovery in recoveries:
+    retry = outcome.state.done & ~was_done & (outcome.state.reason == EXHAUSTED)
+    pick = lambda new, old, retry=retry: jnp.where(
+        retry.reshape(retry.shape + (1,) * (new.ndim - retry.ndim)), new, old)
+    outcome = jax.lax.cond(jnp.any(retry),
+                           lambda recovery=recovery, outcome=outcome, pick=pick: jax.tree.map(
+                               pick, replan(recovery), outcome),
+                           lambda outcome=outcome: outcome)
+  return outcome
 
 
 def plan(config: SimConfig, world: World, params: Params, state: State) -> State:
   """One robot's planning round on the whole grid: ask the planner, install the path, handle
-  no-op goals (see :func:`_plan_round`; with ``config.trail``, :func:`_retry_on_trail`)."""
+  no-op goals (see :func:`_plan_round`; with ``config.trail``, :func:`_recover`)."""
   origin = jnp.zeros((2,), jnp.int32)
-  outcome = _retry_on_trail(config, _plan_round(config, world, params, state, origin), state.done,
-                            lambda: _plan_round(config, world, params, state, origin, True))
+  outcome = _recover(config, _plan_round(config, world, params, state, origin), state.done,
+                     lambda recovery: _plan_round(config, world, params, state, origin, recovery))
   batch = lambda tree: jax.tree.map(lambda x: x[None], tree)
   new = _apply_plans(batch(state), jnp.zeros((1,), jnp.int32), batch(outcome))
   return jax.tree.map(lambda x: x[0], new)
@@ -336,7 +358,7 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
     state, planned = carry
     robots = jax.lax.dynamic_slice(order, (k * chunk,), (chunk,))
 
-    def plan_one(p, robot, use_trail=False):
+    def plan_one(p, robot, recovery=0):
       one = {name: jax.tree.map(lambda x: x[robot], getattr(state, name))
              for name in _small_fields()}
       cell = cell_of(one["pose_est"][:2], world.origin, config.res)
@@ -345,12 +367,14 @@ def _plan_robots(config: SimConfig, world: World, params: Params, state: State, 
       crop = lambda grid: None if grid is None else jax.lax.dynamic_slice(
           grid, corner, (1,) + shape)[0]
       maps = {name: crop(getattr(state, name)) for name in _MAP_FIELDS}
-      return _plan_round(config, world, p, State(**one, **maps), origin, use_trail)
+      return _plan_round(config, world, p, State(**one, **maps), origin, recovery)
 
     chunk_params = jax.tree.map(lambda x: x[robots], params)
-    outcome = _retry_on_trail(
+    outcome = _recover(
         config, jax.vmap(plan_one)(chunk_params, robots), state.done[robots],
-        lambda: jax.vmap(functools.partial(plan_one, use_trail=True))(chunk_params, robots))
+        lambda recovery: jax.vmap(functools.partial(plan_one, recovery=recovery))(chunk_params,
+                                                                                 robots),
+        RECOVERIES[:1] if window else RECOVERIES)
     return _apply_plans(state, robots, outcome), planned.at[robots].set(outcome.certified)
 
   return jax.lax.fori_loop(0, n_chunks, plan_chunk, (state, jnp.zeros_like(need)))

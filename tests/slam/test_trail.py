@@ -115,6 +115,28 @@ def test_a_robot_shut_in_by_a_wall_drawn_a_cell_off_plans_out_along_its_trail():
   np.testing.assert_array_equal(np.asarray(with_trail.waypoints), np.asarray(without.waypoints))
 
 
+def test_a_robot_shut_in_off_its_trail_plans_through_the_free_cells_its_radius_ignored():
+  """The last recovery: a robot that never came through the door (its trail lies in the east
+  room) finds nothing on the inflated belief nor on its trail; through every free cell of its
+  belief it plans west through the door's two free cells. A door walled shut on the belief
+  stays shut (only free cells are traversable), and without the trail setting no recovery runs."""
+  east = [(9, 25), (9, 22)]
+  state = robot_after(east)
+  cell = jnp.asarray(east[-1], jnp.int32)
+  trail = planning.trail_cells(CONFIG, WORLD, state)
+  assert not bool(planning.belief_view(CONFIG, PARAMS, state, cell, trail).traversable[9, 15])
+  bare = planning.belief_view(CONFIG, PARAMS, state, cell, trail, inflate=False)
+  np.testing.assert_array_equal(np.asarray(bare.traversable), np.asarray(bare.free))
+  out = PLAN(CONFIG, WORLD, PARAMS, state)
+  assert not bool(out.done) and int(out.reason) == RUNNING and bool(out.on_trail)
+  path = np.asarray(out.waypoints[:int(out.path_len)])
+  assert any(c == 15 and r in (8, 9) for r, c in path) and path[-1][1] <= 6
+  assert bool(PLAN(dataclasses.replace(CONFIG, trail=0), WORLD, PARAMS, state).done)
+  walled = state.replace(logodds=state.logodds.at[8:10, 15].set(PARAMS.l_max))
+  shut = PLAN(CONFIG, WORLD, PARAMS, walled)
+  assert bool(shut.done) and int(shut.reason) == EXHAUSTED
+
+
 def test_a_path_on_the_trail_is_driven_through_the_margin_of_a_believed_wall():
   """Elsewhere a waypoint nearer to a believed wall than the robot's cell, within its radius,
   ends the path (it was planned before that wall was mapped); on the trail it is driven to."""
