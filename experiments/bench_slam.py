@@ -87,7 +87,9 @@ def time_model(cache, world_name, model, robots, args):
   if model == "scan_matching":
     g = state.graph
     out["keyframes"] = float(np.mean(np.asarray(g.n_nodes)))
-    out["closures"] = float(np.mean(np.asarray(g.n_loops)))
+    loops = np.arange(np.asarray(g.loop_link).shape[-1]) < np.asarray(g.n_loops)[:, None]
+    out["closures"] = float(np.mean(np.sum(loops & ~np.asarray(g.loop_link), axis=1)))
+    out["near_links"] = float(np.mean(np.sum(np.asarray(g.loop_link), axis=1)))
   return out
 
 

@@ -108,6 +108,7 @@ def audit(graph, log, bad_m: float, bad_deg: float, window: int):
           drift_sd_m=float(np.sqrt(max(drift[0, 0], drift[1, 1]))),
           drift_sd_deg=float(np.degrees(np.sqrt(drift[2, 2]))),
           false=bool(graph.loop_false[r, j]),
+          link=bool(graph.loop_link[r, j]) if graph.loop_link is not None else False,
           bad=bool(np.hypot(e[0], e[1]) > bad_m or abs(np.degrees(e[2])) > bad_deg),
           pose_error_before=float(log[max(chunk - 1, 0)]["pose_error"][r]),
           pose_error_after=float(log[chunk]["pose_error"][r])))
@@ -126,7 +127,11 @@ def report(closures, chains, log, header: str, bad_m: float, bad_deg: float) -> 
   for c in chains:
     lines.append(f"| {c['robot']} | {c['edges']} | {c['nees_xy']:.2f} | {c['nees_theta']:.2f} | "
                  f"{c['drift_actual_deg']:.2f} | {c['drift_claimed_deg']:.2f} |")
+  links = [c for c in closures if c["link"]]
+  closures = [c for c in closures if not c["link"]]
   bad = [c for c in closures if c["bad"]]
+  lines += ["", f"## Near links: {len(links)}, of which {sum(c['bad'] for c in links)} bad, "
+            f"{sum(c['false'] for c in links)} false"]
   lines += ["", f"## Loop closures: {len(closures)}, of which {len(bad)} bad (> {bad_m} m or "
             f"> {bad_deg}°), {sum(c['false'] for c in closures)} false", "",
             "| match positional sd at most (m) | good kept | bad kept |", "|---:|---:|---:|"]

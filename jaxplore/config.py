@@ -339,6 +339,17 @@ class Params:
   # the truth is counted false.
   loop_gate: Any = setting(11.34, "a closure's pose must lie within this Mahalanobis distance² "
                            "of the estimate (chi-square, 3 dof, 99 %)", owner="slam", gt=0)
+  # Karto's LinkNearChains (link_scan_maximum_distance 1.5 m): where the robot drives again
+  # through a place it has closed a loop in, its keyframes are matched against the older ones
+  # there, so that the next optimisation keeps the revisit where the old map has it (matched
+  # scan-to-map, the chain alone bends as if its edges were independent).
+  link_radius: Any = setting(1.5, "after a loop closure, a new keyframe within this of an older "
+                             "one is matched against it and linked to it (a near link; 0: "
+                             "never)", owner="slam", unit="m", ge=0)
+  link_spacing: Any = setting(1.0, "... at most one near link per this distance driven",
+                              owner="slam", unit="m", ge=0)
+  link_min_response: Any = setting(0.1, "a weaker near link is refused "
+                                   "(link_match_minimum_response_fine)", owner="slam", ge=0, le=1)
   coverage_goal: Any = setting(0.99, "fraction of the reachable free area that completes an "
                                "episode (above 1: only the planner or the budget ends it)",
                                owner="episode", gt=0)

@@ -157,7 +157,8 @@ def slam_accuracy(graph) -> dict:
   """A ``scan_matching`` robot's SLAM columns from its final pose graph: ``ate_m`` (absolute
   trajectory error of its keyframes, RMSE after rigid alignment, as ``evo_ape --align``),
   ``rpe_m_per_m`` (relative pose error over 1 m stretches, as ``evo_rpe --delta 1 --delta_unit
-  m``, divided by the metre), ``loop_closures`` and ``false_closures``, ``matches_rejected``
+  m``, divided by the metre), ``loop_closures`` and ``false_closures``, ``near_links`` and
+  ``false_links`` (:func:`jaxplore.slam.model.close_loop`), ``matches_rejected``
   (keyframes dead-reckoned), ``optimisations``."""
   from jaxplore.slam import accuracy
   n = int(graph.n_nodes)
@@ -165,11 +166,16 @@ def slam_accuracy(graph) -> dict:
   estimated = np.asarray(graph.poses, np.float32)
   truth = np.asarray(graph.truth, np.float32)
   loops = int(graph.n_loops)
+  link = np.asarray(graph.loop_link)[:loops] if getattr(graph, "loop_link", None) is not None \
+      else np.zeros(loops, bool)
+  false = np.asarray(graph.loop_false)[:loops]
   return {
       "ate_m": float(accuracy.absolute_trajectory_error(estimated, truth, valid)),
       "rpe_m_per_m": float(accuracy.relative_pose_error(estimated, truth, valid, delta=1.0)),
-      "loop_closures": loops,
-      "false_closures": int(np.sum(np.asarray(graph.loop_false)[:loops])),
+      "loop_closures": int(np.sum(~link)),
+      "false_closures": int(np.sum(false & ~link)),
+      "near_links": int(np.sum(link)),
+      "false_links": int(np.sum(false & link)),
       "matches_rejected": int(graph.matches_rejected),
       "optimisations": int(graph.optimisations),
   }

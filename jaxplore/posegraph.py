@@ -75,10 +75,14 @@ class PoseGraph:
       information matrix.
     loop_measured: f32[M, 3], loop_info: f32[M, 3, 3]: the same for the loop closures.
     loop_false: bool[M] a closure whose measured relative pose is wrong (compared with the truth).
+    loop_link: bool[M] an edge that is a near link, not a loop closure (Karto's
+      ``LinkNearChains``: :func:`jaxplore.slam.model.close_loop`); it joins the graph without an
+      optimisation.
     ranges: f16[N, B] each keyframe's scan (cells; a beam with no hit holds ``-range``).
     drift_cov: f32[3, 3] odometry covariance accumulated since the last loop closure (sizes the
       loop search).
     closed_at: f32[2] where (estimated x, y) the last loop closed; NaN before the first.
+    linked_at: f32[2] where the last near link was made; NaN before the first.
     optimisations: i32 back-end runs. matches_rejected: i32 keyframes whose scan match was
       refused (the robot dead-reckoned). loops_rejected: i32 loop searches that found no match.
   """
@@ -98,9 +102,11 @@ class PoseGraph:
   loop_measured: chex.Array | None = None
   loop_info: chex.Array | None = None
   loop_false: chex.Array | None = None
+  loop_link: chex.Array | None = None
   ranges: chex.Array | None = None
   drift_cov: chex.Array | None = None
   closed_at: chex.Array | None = None
+  linked_at: chex.Array | None = None
   optimisations: chex.Array | None = None
   matches_rejected: chex.Array | None = None
   loops_rejected: chex.Array | None = None
@@ -123,8 +129,10 @@ def init(pose, node_capacity: int, loop_capacity: int, beams: int = 0) -> PoseGr
         chain_info=jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (n, 3, 3)),
         loop_measured=jnp.zeros((m, 3), jnp.float32),
         loop_info=jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (m, 3, 3)),
-        loop_false=jnp.zeros((m,), bool), ranges=jnp.zeros((n, beams), jnp.float16),
+        loop_false=jnp.zeros((m,), bool), loop_link=jnp.zeros((m,), bool),
+        ranges=jnp.zeros((n, beams), jnp.float16),
         drift_cov=jnp.zeros((3, 3), jnp.float32), closed_at=jnp.full((2,), jnp.nan, jnp.float32),
+        linked_at=jnp.full((2,), jnp.nan, jnp.float32),
         optimisations=jnp.int32(0),
         matches_rejected=jnp.int32(0), loops_rejected=jnp.int32(0))
   return PoseGraph(

@@ -120,10 +120,11 @@ class Record:
   graph_nodes: Any = None
   graph_edges: Any = None
   dopt_mean: Any = None
-  # With the scan_matching SLAM model (else None): loop closures accepted so far, and how many of
-  # them are false.
+  # With the scan_matching SLAM model (else None): loop closures accepted so far, how many of
+  # them are false, and near links made.
   loop_closures: Any = None
   false_closures: Any = None
+  near_links: Any = None
 
 
 def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
@@ -350,20 +351,30 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
   optimised pose and the belief rebuilt from the keyframes' scans."""
   i = graph.n_nodes - 1
   candidates, ok = slam_model.loop_candidates(config, params, graph, i, pose_est)
-  tries = frame.new & ok[0] & slam_model.loop_armed(graph, pose_est, params)
+  armed = slam_model.loop_armed(graph, pose_est, params)
+  tries = frame.new & ok[0] & armed
+  # Back in a place it has closed a loop in: a near link instead (Karto's LinkNearChains).
+  link = frame.new & ~armed & slam_model.link_due(graph, pose_est, candidates, ok, params)
 
   own_scans = lambda: jax.lax.dynamic_index_in_dim(ranges, robot, 0, keepdims=False)
 
   def search():
     return slam_model.close_loop(config, params, graph, own_scans(), i, pose_est, pose,
-                                 frame.points, frame.valid, offsets, world.origin, candidates, ok)
+                                 frame.points, frame.valid, offsets, world.origin, candidates, ok,
+                                 link)
 
-  closure = jax.lax.cond(tries, search, lambda: _zeros_like(jax.eval_shape(search)))
+  closure = jax.lax.cond(tries | link, search, lambda: _zeros_like(jax.eval_shape(search)))
   before = graph.n_loops
   graph = slam_model.add_loop(graph, closure, i)
   graph = graph.replace(loops_rejected=graph.loops_rejected
                         + (tries & ~closure.found).astype(jnp.int32))
-  closed = graph.n_loops > before
+  added = graph.n_loops > before
+  closed = added & ~link
+  # A near link anchors the estimate to the older keyframes: the drift since, which sizes the
+  # next loop search, starts again from the link's own uncertainty.
+  linked = added & link
+  graph = graph.replace(drift_cov=jnp.where(linked, closure.cov, graph.drift_cov),
+                        linked_at=jnp.where(linked, pose_est[:2], graph.linked_at))
 
   def back_end(graph, logodds):
     graph = slam_model.optimise(config, graph)
@@ -489,7 +500,10 @@ def record(world: World, state: State) -> Record:
     graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
                  dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
     if g.loop_false is not None:
-      graph.update(loop_closures=g.n_loops, false_closures=jnp.sum(g.loop_false))
+      closure = (jnp.arange(g.loop_false.shape[-1]) < g.n_loops[..., None]) & ~g.loop_link
+      graph.update(loop_closures=jnp.sum(closure, axis=-1),
+                   false_closures=jnp.sum(g.loop_false & closure, axis=-1),
+                   near_links=jnp.sum(g.loop_link, axis=-1))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
                 coverage=state.covered / world.n_reachable, det_cov=linalg.det3(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),

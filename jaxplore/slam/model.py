@@ -245,6 +245,8 @@ class Closure(NamedTuple):
   info: jax.Array  # f32[3, 3]
   false: jax.Array  # bool: measured is wrong by more than the false-closure tolerance
   pose: jax.Array  # f32[3] the matched pose
+  cov: jax.Array  # f32[3, 3] its covariance (world frame)
+  link: jax.Array  # bool: a near link, not a loop closure
 
 
 def facing(x, y, hit, origin_xy, view_xy, res: float):
@@ -312,16 +314,26 @@ def loop_candidates(config, params, graph: PoseGraph, i, pose):
 
 
 def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points, valid, offsets,
-               origin, candidates, ok) -> Closure:
+               origin, candidates, ok, link=False) -> Closure:
   """Looks for a loop closure of the new keyframe ``i`` (at estimate ``pose``, true ``truth``)
-  against the ``candidates`` (:func:`loop_candidates`; their scans in ``ranges``)."""
+  against the ``candidates`` (:func:`loop_candidates`; their scans in ``ranges``).
+
+  With ``link`` (a traced bool) it makes a near link instead (Karto's ``LinkNearChains``): the
+  robot is back in a place it has closed a loop in, its estimate just matched against a belief
+  drawn from those older keyframes, so the search is the front end's (a window of three
+  standard deviations of the drift since the closure, at most ``slam_search_m``) and the match
+  is accepted at a response of ``link_min_response``."""
   assert graph.truth is not None and graph.drift_cov is not None  # the scan_matching graph's
   sz = sizes(config)
   occupied, corner = local_map(graph, ranges, candidates, ok, offsets, config.res, pose[:2],
                                sz.loop_crop, origin)
   field = scan_matching.smear(occupied, config.res, config.loop_smear, sz.loop_smear_cells)
-  half_xy, half_angle = _half_extents(graph.drift_cov, params, config.loop_search_m, config.res)
-  # Karto matches a loop closure without the odometry penalty (TryCloseLoop: doPenalize false).
+  loop_xy, loop_angle = _half_extents(graph.drift_cov, params, config.loop_search_m, config.res)
+  link_xy, link_angle = _half_extents(graph.drift_cov, params, config.slam_search_m, config.res)
+  half_xy = jnp.where(link, link_xy, loop_xy)
+  half_angle = jnp.where(link, link_angle, loop_angle)
+  # Karto matches a loop closure without the odometry penalty (TryCloseLoop: doPenalize false),
+  # and a near chain too (LinkNearChains).
   m = scan_matching.match(field, corner, config.res, points, valid, pose, half_xy, half_angle,
                           sz.loop_window, sz.fine, scan_matching.NO_PENALTIES)
   older = candidates[0]
@@ -343,10 +355,26 @@ def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points,
   inner = (config.loop_steps - 0.5) / config.loop_steps
   inside = ((jnp.max(jnp.abs(innovation[:2])) <= inner * half_xy)
             & (jnp.abs(innovation[2]) <= inner * half_angle))
-  found = (ok[0] & (m.response >= params.loop_min_response) & (gate <= params.loop_gate)
+  min_response = jnp.where(link, params.link_min_response, params.loop_min_response)
+  found = (ok[0] & (m.response >= min_response) & (gate <= params.loop_gate)
            & (jnp.maximum(m.cov[0, 0], m.cov[1, 1]) <= params.loop_max_variance) & inside)
   return Closure(found=found, older=older, measured=measured, info=info,
-                 false=false, pose=m.pose)
+                 false=false, pose=m.pose, cov=m.cov, link=jnp.asarray(link))
+
+
+def link_due(graph: PoseGraph, pose, candidates, ok, params):
+  """Whether a new keyframe at ``pose`` makes a near link (:func:`close_loop` with ``link``):
+  its nearest candidate lies within ``link_radius``, it is ``link_spacing`` from the last near
+  link, and a quarter of the loop list is still free (kept for loop closures). The caller asks
+  only where no loop closure is due (:func:`loop_armed`)."""
+  assert graph.linked_at is not None  # the scan_matching graph's
+  gap = pose[:2] - graph.poses[candidates[0], :2]
+  near = ok[0] & (jnp.hypot(gap[0], gap[1]) <= params.link_radius)
+  since = pose[:2] - graph.linked_at
+  spaced = ~jnp.all(jnp.isfinite(graph.linked_at)) | (jnp.hypot(since[0], since[1])
+                                                       >= params.link_spacing)
+  m_cap = graph.loops.shape[0]
+  return near & spaced & (graph.n_loops < m_cap - m_cap // 4)
 
 
 def loop_armed(graph: PoseGraph, pose, params):
@@ -360,7 +388,8 @@ def loop_armed(graph: PoseGraph, pose, params):
 
 
 def add_loop(graph: PoseGraph, closure: Closure, i) -> PoseGraph:
-  """The closure's edge (older keyframe -> keyframe ``i``) when found and there is room."""
+  """The closure's (or near link's) edge (older keyframe -> keyframe ``i``) when found and there
+  is room."""
   m_cap = graph.loops.shape[0]
   room = graph.n_loops < m_cap
   write = closure.found & room
@@ -371,6 +400,7 @@ def add_loop(graph: PoseGraph, closure: Closure, i) -> PoseGraph:
       loop_w=put(graph.loop_w, d_optimality_of_information(closure.info)),
       loop_measured=put(graph.loop_measured, closure.measured),
       loop_info=put(graph.loop_info, closure.info), loop_false=put(graph.loop_false, closure.false),
+      loop_link=put(graph.loop_link, closure.link),
       n_loops=graph.n_loops + write.astype(jnp.int32),
       loops_dropped=graph.loops_dropped + (closure.found & ~room).astype(jnp.int32))
 
@@ -573,6 +603,6 @@ def rebuild(logodds, robot, graph: PoseGraph, ranges, offsets, origin, res: floa
 __all__ = ["COUNT_BLOCK", "END_PUSH_CELLS", "NEIGHBOUR_CELLS", "WOODBURY_LOOPS", "Closure", "Ends",
            "Sizes", "add_keyframe", "add_loop", "beam_offsets", "close_loop", "crop",
            "d_optimality_of_information", "end_crossings", "end_points", "facing", "graph_edges",
-           "in_frame", "information", "keyframe_counts", "keyframe_observation", "local_map",
-           "loop_armed", "loop_candidates", "optimise", "rebuild", "register", "scan_points",
-           "sizes", "stored_scan"]
+           "in_frame", "information", "keyframe_counts", "keyframe_observation", "link_due",
+           "local_map", "loop_armed", "loop_candidates", "optimise", "rebuild", "register",
+           "scan_points", "sizes", "stored_scan"]

@@ -64,20 +64,21 @@ def setup():
   stride = model.sizes(config).stride
 
   @jax.jit
-  def closure(params, graph, ranges, pose, truth, scan):
+  def closure(params, graph, ranges, pose, truth, scan, link):
     points, valid = model.scan_points(scan, jnp.asarray(offsets), RES, stride)
     i = graph.n_nodes - 1
     candidates, ok = model.loop_candidates(config, params, graph, i, pose)
     return model.close_loop(config, params, graph, ranges, i, pose, truth, points, valid,
-                            jnp.asarray(offsets), jnp.zeros(2), candidates, ok)
+                            jnp.asarray(offsets), jnp.zeros(2), candidates, ok, link)
 
   return params, offsets, closure
 
 
-def close(setup, occ, error_x, **params_changes):
+def close(setup, occ, error_x, link=False, **params_changes):
   """Keyframes every 0.3 m along the corridor's middle from x = 4.2 m to 9.0 m, stored at their
   true poses; then a keyframe back at x = 6.5 m (a revisit) whose estimate is ``error_x`` metres
-  off along the corridor, the drift covariance 0.3 m / 3 degrees. Its loop closure."""
+  off along the corridor, the drift covariance 0.3 m / 3 degrees. Its loop closure (its near
+  link with ``link``)."""
   params, offsets, closure = setup
   params = params.replace(**{k: jnp.float32(v) for k, v in params_changes.items()})
   old = [np.array([x, 1.45, 0.0]) for x in np.arange(4.2, 9.01, 0.3)]
@@ -96,7 +97,8 @@ def close(setup, occ, error_x, **params_changes):
       poses=jnp.asarray(poses), truth=jnp.asarray(truths), n_nodes=jnp.int32(n),
       drift_cov=jnp.diag(jnp.array([0.3 ** 2, 0.3 ** 2, math.radians(3.0) ** 2], jnp.float32)))
   result = closure(params, graph, jnp.asarray(ranges), jnp.asarray(estimate, jnp.float32),
-                   jnp.asarray(truth, jnp.float32), jnp.asarray(ranges[n - 1]))
+                   jnp.asarray(truth, jnp.float32), jnp.asarray(ranges[n - 1]),
+                   jnp.bool_(link))
   return jax.tree.map(np.asarray, result), truth
 
 
@@ -119,3 +121,39 @@ def test_a_place_told_apart_is_closed_and_corrects_the_estimate(setup):
   assert bool(result.found) and not bool(result.false)
   # The closure's pose is the true one to within a cell (the estimate was 0.4 m off).
   assert abs(result.pose[0] - truth[0]) < RES and abs(result.pose[1] - truth[1]) < RES
+
+
+def test_a_near_link_searches_the_front_ends_window(setup):
+  """A near link (Karto's LinkNearChains) matches within the front end's window (3 sd of the
+  drift, at most slam_search_m = 0.25 m): 0.1 m off it finds the true pose, an edge flagged as a
+  link; 0.4 m off the truth lies outside its window, its best pose on the window's edge is no
+  peak and it is refused, where a loop closure's 2 m window finds it."""
+  near, truth = close(setup, corridor(features=True), 0.1, link=True)
+  assert bool(near.found) and bool(near.link) and not bool(near.false)
+  assert abs(near.pose[0] - truth[0]) < RES and abs(near.pose[1] - truth[1]) < RES
+  far, _ = close(setup, corridor(features=True), 0.4, link=True)
+  assert not bool(far.found)
+  # Within the window and the fine search around its edge (one coarse step of loop_steps).
+  config = SimConfig(height=4, width=4, res=RES)
+  reach = config.slam_search_m * (1 + 1 / config.loop_steps)
+  assert abs(far.pose[0] - (truth[0] + 0.4)) <= reach + 1e-6
+  loop, _ = close(setup, corridor(features=True), 0.4)
+  assert bool(loop.found) and not bool(loop.link)
+
+
+@pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["eager", "jit"])
+def test_a_near_link_is_due_near_an_older_keyframe_spaced_and_with_room_for_closures(transform):
+  params = make_params(res=RES, link_radius=1.5, link_spacing=1.0)
+  graph = posegraph.init(jnp.zeros(3), 16, 8, N_BEAMS).replace(
+      poses=jnp.zeros((16, 3)).at[:, 0].set(jnp.arange(16.0)), n_nodes=jnp.int32(16))
+  candidates, ok = jnp.array([3, 4]), jnp.array([True, True])
+  due = transform(lambda g, pose, ok: model.link_due(g, pose, candidates, ok, params))
+  here = jnp.array([3.0, 1.0, 0.0])  # 1 m from keyframe 3
+  assert bool(due(graph, here, ok))
+  assert not bool(due(graph, jnp.array([3.0, 2.0, 0.0]), ok))  # 2 m: beyond link_radius
+  assert not bool(due(graph, here, ok.at[0].set(False)))  # no candidate
+  assert not bool(due(graph.replace(linked_at=jnp.array([3.5, 1.0])), here, ok))  # 0.5 m since
+  assert bool(due(graph.replace(linked_at=jnp.array([4.0, 1.0])), here, ok))  # 1 m since
+  # A quarter of the loop list (2 of 8 slots) is kept for loop closures.
+  assert bool(due(graph.replace(n_loops=jnp.int32(5)), here, ok))
+  assert not bool(due(graph.replace(n_loops=jnp.int32(6)), here, ok))

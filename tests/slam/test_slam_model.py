@@ -119,18 +119,26 @@ def test_keyframes_edges_and_closures_are_what_the_graph_says(slam_drives):
     g = state.graph
     n, m = int(g.n_nodes), int(g.n_loops)
     assert 10 <= n <= config.graph_nodes
+    # The loop list holds the closures and the near links; only a closure is optimised.
+    link = np.asarray(g.loop_link[:m])
+    closed = int(np.sum(~link))
+    assert not g.loop_link[m:].any()
     # An odometry edge measures the relative pose of consecutive estimates as they were added
     # (optimisations move the poses later; before the first closure they agree).
     first = int(np.argmax(rec.loop_closures > 0)) if m else STEPS
     np.testing.assert_array_less(-1, rec.loop_closures)
-    assert rec.loop_closures[-1] == m and rec.false_closures[-1] == int(g.loop_false[:m].sum())
+    assert rec.loop_closures[-1] == closed and rec.near_links[-1] == m - closed
+    assert rec.false_closures[-1] == int(np.sum(g.loop_false[:m] & ~link))
+    # A near link comes after a closure, never before the first.
+    if link.any():
+      assert not link[0]
     # Weights are the D-optimality of the information matrices.
     info = g.chain_info[1:n]
     np.testing.assert_allclose(g.chain_w[1:n], np.cbrt(np.linalg.det(info)), rtol=1e-3)
     for a, b in g.loops[:m]:
       assert b - a >= params.loop_min_age
-    assert int(g.optimisations) == m
-    closures += m
+    assert int(g.optimisations) == closed
+    closures += closed
     del first
   assert closures >= 1, "no drive closed a loop on its second lap"
 
@@ -169,10 +177,12 @@ def test_episode_table_carries_the_slam_columns(slam_drives):
   valid = np.arange(g.poses.shape[0]) < n
   np.testing.assert_allclose(row["ate_m"], accuracy.absolute_trajectory_error(
       g.poses, g.truth, valid), rtol=1e-5)
-  assert row["loop_closures"] == int(g.n_loops)
+  link = np.asarray(g.loop_link[:int(g.n_loops)])
+  assert row["loop_closures"] == int(np.sum(~link)) and row["near_links"] == int(np.sum(link))
   assert 0 <= row["misplaced_walls"] <= 1
-  assert {"rpe_m_per_m", "false_closures", "matches_rejected", "optimisations"} <= set(row.index)
-  assert {"loop_closures", "false_closures"} <= set(curves.columns)
+  assert {"rpe_m_per_m", "false_closures", "false_links", "matches_rejected",
+          "optimisations"} <= set(row.index)
+  assert {"loop_closures", "false_closures", "near_links"} <= set(curves.columns)
 
 
 def test_rebuilt_map_at_the_true_poses_matches_the_truth(slam_drives):
