@@ -19,7 +19,8 @@ REPO = Path(__file__).resolve().parents[1]
 def subprocess_env(drop=("XLA_FLAGS",), **extra):
   """The environment of a test's Python subprocess: this one's without the variables whose names
   start with ``drop`` (the parent's XLA flags are not the child's), the checkout first on
-  ``PYTHONPATH``, then ``extra``."""
+  ``PYTHONPATH``, then ``extra``; XLA_FLAGS get the suite's fusion-emitter flag
+  (:data:`CODEGEN_FLAG`) unless they set it."""
   env = {k: v for k, v in os.environ.items() if not k.startswith(tuple(drop))}
   env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
   cache = jax.config.jax_compilation_cache_dir  # the suite's (shared_compilation_cache)
@@ -27,14 +28,20 @@ def subprocess_env(drop=("XLA_FLAGS",), **extra):
     env["JAX_COMPILATION_CACHE_DIR"] = str(cache)
     env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
   env.update(extra)
+  if CODEGEN_FLAG and "xla_cpu_use_fusion_emitters" not in env.get("XLA_FLAGS", ""):
+    env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {CODEGEN_FLAG}".strip()  # the suite's codegen
   return env
 
 
 # XLA:CPU's MLIR fusion emitters (jaxlib's default) take about half of a compile of the engine's
-# programs; XLA's other fusion emitters, with this flag, compile the same fusions in about half the
-# time (a run's chunk program: 10.5 -> 5.1 s, li2020 on 2 host devices) and gave the same
-# numbers in every check made (tables and final state, bit for bit). XLA refuses to start with a
-# flag its version does not know, so it is used only where a probe finds it known.
+# programs, and the suite is compile-bound; XLA's other fusion emitters, with this flag, compile
+# the same fusions in about half the time (a run's chunk program: 10.5 -> 5.1 s, li2020 on 2 host
+# devices) and gave the same numbers in every check made (tables and final states bit for bit; the
+# suite's oracles and bit-for-bit checks pass under both). The suite's processes, and the
+# subprocesses its tests start (subprocess_env), compile with it; XLA_FLAGS that set
+# xla_cpu_use_fusion_emitters themselves (``=true``: jaxlib's default codegen) are kept instead,
+# for both. XLA refuses to start with a flag its version does not know, so it is used only where
+# a probe finds it known.
 FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
 
 
@@ -46,6 +53,23 @@ def fast_compile_flags() -> str:
   probe = subprocess.run([sys.executable, "-c", "import jax; jax.devices()"], env=env,
                          capture_output=True, timeout=120)
   return FAST_COMPILE_FLAG if probe.returncode == 0 else ""
+
+
+def _codegen_flag() -> str:
+  """The fusion-emitter flag of the suite's processes: the one XLA_FLAGS gives (an xdist worker
+  inherits the controller's), else :func:`fast_compile_flags`; put in XLA_FLAGS here, before
+  JAX starts its CPU client."""
+  flags = os.environ.get("XLA_FLAGS", "")
+  given = [f for f in flags.split() if f.startswith("--xla_cpu_use_fusion_emitters")]
+  if given:
+    return given[-1]
+  fast = fast_compile_flags()
+  if fast:
+    os.environ["XLA_FLAGS"] = f"{flags} {fast}".strip()
+  return fast
+
+
+CODEGEN_FLAG = _codegen_flag()
 
 
 def pytest_collection_modifyitems(items):

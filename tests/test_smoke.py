@@ -11,7 +11,7 @@ also checks, with its compiled program, that a batch that does not divide over t
 padded, not run on fewer.
 
 LLVM optimises the programs at level 0 here, and XLA's fusions are emitted without its MLIR
-fusion emitters (``conftest.FAST_COMPILE_FLAG``, where this jaxlib knows the flag): the compile is
+fusion emitters (the suite's ``conftest.CODEGEN_FLAG``, where this jaxlib knows it): the compile is
 ~20 % shorter at level 0 (li2020: 9.8 s against 12.2 s) and half that again without the MLIR
 emitters (reset and chunk: 9.5 -> 3.5 s for nearest_frontier, 11.4 -> 6.4 s for gpbo; the tables
 and final states bit for bit the same). What can hang is the runtime's threading, the same under
@@ -23,7 +23,7 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import REPO, fast_compile_flags, subprocess_env
+from conftest import REPO, subprocess_env
 
 from jaxplore.planners import planner_names
 
@@ -69,7 +69,7 @@ def halves():
 def run_four_robots_on_two_host_devices(names):
   # no program of this process is compiled by another: none is written to the suite's cache
   env = subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2 "
-                                 f"--xla_backend_optimization_level=0 {fast_compile_flags()}",
+                                 "--xla_backend_optimization_level=0",
                        JAX_ENABLE_COMPILATION_CACHE="false")
   try:
     proc = subprocess.run([sys.executable, "-c", PLANNERS, *names], cwd=REPO, env=env,
