@@ -100,7 +100,11 @@ STUCK_SECOND_CHUNK = textwrap.dedent("""
     import os, signal, sys, threading, time
     import jax
     from jaxplore import cli, driver
-    driver.drive.__kwdefaults__["watchdog"] = driver.Watchdog(idle_s=2.0, grace_s=1.0)
+    # Ctrl-C's grace period alone ends the run in the Ctrl-C cases: the watchdog's idle time,
+    # were it as short, could judge the chunk stuck first (both at ~2 s in, on a loaded machine).
+    watching = os.environ["STUCK_MODE"] == "watchdog"
+    driver.drive.__kwdefaults__["watchdog"] = driver.Watchdog(idle_s=2.0 if watching else 60.0,
+                                                              grace_s=1.0)
     real = driver.compile_advance
 
     def sleep(x):
