@@ -90,6 +90,7 @@ def time_model(cache, world_name, model, robots, args):
     loops = np.arange(np.asarray(g.loop_link).shape[-1]) < np.asarray(g.n_loops)[:, None]
     out["closures"] = float(np.mean(np.sum(loops & ~np.asarray(g.loop_link), axis=1)))
     out["near_links"] = float(np.mean(np.sum(np.asarray(g.loop_link), axis=1)))
+    out["revoked"] = float(np.mean(np.sum(np.asarray(g.loop_revoked), axis=1)))
   return out
 
 

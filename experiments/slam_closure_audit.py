@@ -33,6 +33,7 @@ SHARED_MAPS = HERE.parent.parent / "shared" / "maps"
 WORLDS = {"willow": str(SHARED_MAPS / "willow.yaml"), "intel": str(SHARED_MAPS / "intel.yaml")}
 RES = {"willow": 0.2, "intel": 0.2}
 SD_THRESHOLDS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 1.0)
+CHI2_THRESHOLDS = (3.0, 7.81, 11.34, 16.27, 25.0, 100.0)
 
 
 def _between(a, b):
@@ -74,12 +75,30 @@ def simulate(world: str, robots: int, epochs: int, settings: dict):
   return jax.tree.map(np.asarray, state.graph), log
 
 
+def final_chi2(graph, r: int):
+  """Robot ``r``'s loop edges' ``rᵀ Ω r`` (:func:`jaxplore.slam.model.loop_chi2`) at the optimum
+  of its final graph (re-optimised: near links made since its last closure are in it; revoked
+  edges are not)."""
+  import jax
+  import jax.numpy as jnp
+
+  from jaxplore.slam import model, optimiser
+  g = jax.tree.map(lambda a: None if a is None else jnp.asarray(a[r]), graph)
+  valid = jnp.arange(g.poses.shape[0]) < g.n_nodes
+  result = optimiser.optimise(g.poses, valid, model.graph_edges(g), max_iterations=50,
+                              loop_capacity=min(model.WOODBURY_LOOPS, g.loops.shape[0]),
+                              cg_max_iterations=50)
+  return np.asarray(model.loop_chi2(g.replace(poses=jnp.where(valid[:, None], result.poses,
+                                                                 g.poses))))
+
+
 def audit(graph, log, bad_m: float, bad_deg: float, window: int):
   """The closures (list of dicts) and the chain's calibration per robot (list of dicts)."""
   closures, chains = [], []
   n_robots = graph.n_nodes.shape[0]
   for r in range(n_robots):
     n = int(graph.n_nodes[r])
+    chi2 = final_chi2(graph, r)
     truth = _between(graph.truth[r, :n - 1], graph.truth[r, 1:n])
     err = graph.chain_measured[r, 1:n] - truth
     err[:, 2] = (err[:, 2] + np.pi) % (2 * np.pi) - np.pi
@@ -110,6 +129,8 @@ def audit(graph, log, bad_m: float, bad_deg: float, window: int):
           false=bool(graph.loop_false[r, j]),
           link=bool(graph.loop_link[r, j]) if graph.loop_link is not None else False,
           bad=bool(np.hypot(e[0], e[1]) > bad_m or abs(np.degrees(e[2])) > bad_deg),
+          revoked=bool(graph.loop_revoked[r, j]), chi2=float(chi2[j]),
+          chi2_last=float(graph.loop_chi2[r, j]),
           pose_error_before=float(log[max(chunk - 1, 0)]["pose_error"][r]),
           pose_error_after=float(log[chunk]["pose_error"][r])))
   return closures, chains
@@ -127,6 +148,22 @@ def report(closures, chains, log, header: str, bad_m: float, bad_deg: float) -> 
   for c in chains:
     lines.append(f"| {c['robot']} | {c['edges']} | {c['nees_xy']:.2f} | {c['nees_theta']:.2f} | "
                  f"{c['drift_actual_deg']:.2f} | {c['drift_claimed_deg']:.2f} |")
+  lines += ["", "## Which loop edges the back end's χ² test would catch", "",
+            "Each loop edge's `rᵀ Ω r` at the optimum of its robot's final graph (revoked edges "
+            "left out; for them, the value at the optimisation that revoked them), against "
+            "whether it is bad; `loop_revoke_chi2` revokes above its value.", "",
+            "| edges | χ² above | bad caught | good caught | revoked: bad / good |",
+            "|---|---:|---:|---:|---:|"]
+  for kind, group in (("closures", [c for c in closures if not c["link"]]),
+                      ("near links", [c for c in closures if c["link"]])):
+    chi2 = np.array([c["chi2_last"] if c["revoked"] else c["chi2"] for c in group])
+    bad_edge = np.array([c["bad"] for c in group], bool)
+    revoked = np.array([c["revoked"] for c in group], bool)
+    for th in CHI2_THRESHOLDS:
+      over = chi2 > th
+      lines.append(f"| {kind} | {th} | {int(np.sum(over & bad_edge))} / {int(bad_edge.sum())} | "
+                   f"{int(np.sum(over & ~bad_edge))} / {int(np.sum(~bad_edge))} | "
+                   f"{int(np.sum(revoked & bad_edge))} / {int(np.sum(revoked & ~bad_edge))} |")
   links = [c for c in closures if c["link"]]
   closures = [c for c in closures if not c["link"]]
   bad = [c for c in closures if c["bad"]]

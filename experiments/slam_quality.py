@@ -81,7 +81,8 @@ def main(argv=None):
                  coverage=ep.coverage.mean(), distance=ep.distance_m.mean(),
                  pose_error_mean=ep.pose_error_mean.mean(), pose_error_max=ep.pose_error_max.max(),
                  ssim=ep.ssim.mean(), rmse=ep.rmse.mean(), misplaced=ep.misplaced_walls.mean())
-      for col in ("ate_m", "rpe_m_per_m", "loop_closures", "false_closures"):
+      for col in ("ate_m", "rpe_m_per_m", "loop_closures", "false_closures", "near_links",
+                  "false_links", "revoked", "false_revoked"):
         row[col] = ep[col].mean() if col in ep else float("nan")
       row["closing_robots"] = int((ep.loop_closures > 0).sum()) if "loop_closures" in ep else 0
       rows.append(row)
@@ -104,15 +105,17 @@ def main(argv=None):
       "the keyframes of the scan_matching robots (evo's definitions); map error of the final "
       "belief against the truth.", "",
       "| world | model | robots | complete | coverage | distance m | pose err mean / max m | "
-      "ATE m | RPE m/m | SSIM | RMSE | misplaced walls | closures (false) | robots closing | "
-      "wall s |",
-      "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+      "ATE m | RPE m/m | SSIM | RMSE | misplaced walls | closures (false) | links (false) | "
+      "revoked (false) | robots closing | wall s |",
+      "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
   for r in rows:
     lines.append(
         f"| {r['world']} | {r['model']} | {r['robots']} | {r['complete']} | {r['coverage']:.3f} | "
         f"{r['distance']:.1f} | {r['pose_error_mean']:.3f} / {r['pose_error_max']:.3f} | "
         f"{r['ate_m']:.3f} | {r['rpe_m_per_m']:.4f} | {r['ssim']:.3f} | {r['rmse']:.3f} | "
         f"{r['misplaced']:.3f} | {r['loop_closures']:.2f} ({r['false_closures']:.2f}) | "
+        f"{r['near_links']:.2f} ({r['false_links']:.2f}) | "
+        f"{r['revoked']:.2f} ({r['false_revoked']:.2f}) | "
         f"{r['closing_robots']} | {r['wall_s']:.0f} |")
   if figure is not None:
     lines += ["", f"![a closure]({figure.name})", ""]

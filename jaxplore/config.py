@@ -339,6 +339,12 @@ class Params:
   # the truth is counted false.
   loop_gate: Any = setting(11.34, "a closure's pose must lie within this Mahalanobis distance² "
                            "of the estimate (chi-square, 3 dof, 99 %)", owner="slam", gt=0)
+  # Not Karto's (it keeps every closure it accepts): a false closure bends the whole graph to
+  # fit it, and shows at the optimum as an edge the rest of the graph disagrees with.
+  loop_revoke_chi2: Any = setting(16.27, "at the back end's optimum, a loop edge whose "
+                                  "Mahalanobis error² exceeds this is taken out again and the "
+                                  "graph optimised without it (chi-square, 3 dof, 99.9 %; 0: "
+                                  "never, as Karto)", owner="slam", ge=0)
   # Karto's LinkNearChains (link_scan_maximum_distance 1.5 m): where the robot drives again
   # through a place it has closed a loop in, its keyframes are matched against the older ones
   # there, so that the next optimisation keeps the revisit where the old map has it (matched

@@ -158,24 +158,28 @@ def slam_accuracy(graph) -> dict:
   trajectory error of its keyframes, RMSE after rigid alignment, as ``evo_ape --align``),
   ``rpe_m_per_m`` (relative pose error over 1 m stretches, as ``evo_rpe --delta 1 --delta_unit
   m``, divided by the metre), ``loop_closures`` and ``false_closures``, ``near_links`` and
-  ``false_links`` (:func:`jaxplore.slam.model.close_loop`), ``matches_rejected``
-  (keyframes dead-reckoned), ``optimisations``."""
+  ``false_links`` (:func:`jaxplore.slam.model.close_loop`; the edges in the final graph),
+  ``revoked`` and ``false_revoked`` (loop edges the back end took out again, and how many of
+  them were false: :func:`jaxplore.slam.model.optimise`), ``matches_rejected`` (keyframes
+  dead-reckoned), ``optimisations``."""
   from jaxplore.slam import accuracy
   n = int(graph.n_nodes)
   valid = np.arange(np.asarray(graph.poses).shape[0]) < n
   estimated = np.asarray(graph.poses, np.float32)
   truth = np.asarray(graph.truth, np.float32)
   loops = int(graph.n_loops)
-  link = np.asarray(graph.loop_link)[:loops] if getattr(graph, "loop_link", None) is not None \
-      else np.zeros(loops, bool)
+  link = np.asarray(graph.loop_link)[:loops]
   false = np.asarray(graph.loop_false)[:loops]
+  revoked = np.asarray(graph.loop_revoked)[:loops]
   return {
       "ate_m": float(accuracy.absolute_trajectory_error(estimated, truth, valid)),
       "rpe_m_per_m": float(accuracy.relative_pose_error(estimated, truth, valid, delta=1.0)),
-      "loop_closures": int(np.sum(~link)),
-      "false_closures": int(np.sum(false & ~link)),
-      "near_links": int(np.sum(link)),
-      "false_links": int(np.sum(false & link)),
+      "loop_closures": int(np.sum(~link & ~revoked)),
+      "false_closures": int(np.sum(false & ~link & ~revoked)),
+      "near_links": int(np.sum(link & ~revoked)),
+      "false_links": int(np.sum(false & link & ~revoked)),
+      "revoked": int(np.sum(revoked)),
+      "false_revoked": int(np.sum(false & revoked)),
       "matches_rejected": int(graph.matches_rejected),
       "optimisations": int(graph.optimisations),
   }
@@ -191,8 +195,13 @@ def map_and_graph_row(logodds, truth_occupied, graph=None, dopt_curve=None) -> d
   row["misplaced_walls"] = float(accuracy.misplaced_walls(np.asarray(logodds) > 0.0,
                                                           np.asarray(truth_occupied)))
   if graph is not None:
-    row.update(graph_metrics(graph.chain_w, graph.loops, graph.loop_w, int(graph.n_nodes),
-                             int(graph.n_loops), int(graph.loops_dropped)))
+    m = int(graph.n_loops)
+    kept = np.ones(m, bool)
+    if getattr(graph, "loop_revoked", None) is not None:  # revoked edges are out of the graph
+      kept = ~np.asarray(graph.loop_revoked)[:m]
+    row.update(graph_metrics(graph.chain_w, np.asarray(graph.loops)[:m][kept],
+                             np.asarray(graph.loop_w)[:m][kept], int(graph.n_nodes),
+                             int(kept.sum()), int(graph.loops_dropped)))
     row.update(dopt_range([] if dopt_curve is None else dopt_curve))
     if getattr(graph, "truth", None) is not None:
       row.update(slam_accuracy(graph))

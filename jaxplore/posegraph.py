@@ -78,6 +78,10 @@ class PoseGraph:
     loop_link: bool[M] an edge that is a near link, not a loop closure (Karto's
       ``LinkNearChains``: :func:`jaxplore.slam.model.close_loop`); it joins the graph without an
       optimisation.
+    loop_revoked: bool[M] an edge the back end took out again: at the optimum it disagreed with
+      the rest of the graph (:func:`jaxplore.slam.model.optimise`). It keeps its row (counted,
+      weight 0) but no longer constrains the poses.
+    loop_chi2: f32[M] each loop edge's ``rᵀ Ω r`` at the last optimisation (0 before it).
     ranges: f16[N, B] each keyframe's scan (cells; a beam with no hit holds ``-range``).
     drift_cov: f32[3, 3] odometry covariance accumulated since the last loop closure (sizes the
       loop search).
@@ -103,6 +107,8 @@ class PoseGraph:
   loop_info: chex.Array | None = None
   loop_false: chex.Array | None = None
   loop_link: chex.Array | None = None
+  loop_revoked: chex.Array | None = None
+  loop_chi2: chex.Array | None = None
   ranges: chex.Array | None = None
   drift_cov: chex.Array | None = None
   closed_at: chex.Array | None = None
@@ -130,6 +136,7 @@ def init(pose, node_capacity: int, loop_capacity: int, beams: int = 0) -> PoseGr
         loop_measured=jnp.zeros((m, 3), jnp.float32),
         loop_info=jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (m, 3, 3)),
         loop_false=jnp.zeros((m,), bool), loop_link=jnp.zeros((m,), bool),
+        loop_revoked=jnp.zeros((m,), bool), loop_chi2=jnp.zeros((m,), jnp.float32),
         ranges=jnp.zeros((n, beams), jnp.float16),
         drift_cov=jnp.zeros((3, 3), jnp.float32), closed_at=jnp.full((2,), jnp.nan, jnp.float32),
         linked_at=jnp.full((2,), jnp.nan, jnp.float32),

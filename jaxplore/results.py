@@ -60,7 +60,7 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
     curves = pd.DataFrame({"robot": r_idx.astype(np.int32), "step": (t_idx + 1).astype(np.int32)})
     for name in ("time", "distance", "entropy", "coverage", "det_cov", "pose_error", "x", "y",
                  "graph_nodes", "graph_edges", "dopt_mean", "loop_closures", "false_closures",
-                 "near_links"):
+                 "near_links", "revoked"):
       if getattr(records, name) is not None:  # the pose graph's columns only with a graph
         curves[name] = getattr(records, name)[t_idx, r_idx].astype(np.float64)
   initial = float(config.height * config.width * math.log(2.0))
@@ -91,7 +91,7 @@ def summary_table(episodes: pd.DataFrame) -> str:
                     ("t90_s", "s"), ("t99_s", "s"),
                     # with the scan_matching SLAM model only
                     ("ate_m", "m"), ("loop_closures", ""), ("false_closures", ""),
-                    ("near_links", "")):
+                    ("near_links", ""), ("revoked", "")):
     if col in episodes:
       v = episodes[col].astype(float)
       lines.append(f"  {col:<18} {v.mean():12.4g} ± {v.std():<10.4g} {unit}  "

@@ -120,11 +120,13 @@ class Record:
   graph_nodes: Any = None
   graph_edges: Any = None
   dopt_mean: Any = None
-  # With the scan_matching SLAM model (else None): loop closures accepted so far, how many of
-  # them are false, and near links made.
+  # With the scan_matching SLAM model (else None): loop closures in the graph, how many of
+  # them are false, near links in the graph, and loop edges (closures or links) the back end
+  # revoked.
   loop_closures: Any = None
   false_closures: Any = None
   near_links: Any = None
+  revoked: Any = None
 
 
 def planner_context(config: SimConfig, shape: tuple[int, int] | None = None
@@ -377,7 +379,7 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
                         linked_at=jnp.where(linked, pose_est[:2], graph.linked_at))
 
   def back_end(graph, logodds):
-    graph = slam_model.optimise(config, graph)
+    graph = slam_model.optimise(config, params, graph)
     logodds, entropy, covered = slam_model.rebuild(
         logodds, robot, graph, own_scans(), offsets, world.origin, config.res, world.reachable,
         params, config.max_range_cells + 1,
@@ -389,8 +391,10 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
 
   graph, logodds, rebuilt = jax.lax.cond(closed, back_end, unchanged, graph, logodds)
   pose_est = jnp.where(closed, graph.poses[i], pose_est)
-  graph = graph.replace(drift_cov=jnp.where(closed, 0.0, graph.drift_cov),
-                        closed_at=jnp.where(closed, pose_est[:2], graph.closed_at))
+  # A closure the back end revoked (slam_model.optimise) closed nothing: the drift stands.
+  kept = closed & ~graph.loop_revoked[jnp.minimum(before, graph.loops.shape[0] - 1)]
+  graph = graph.replace(drift_cov=jnp.where(kept, 0.0, graph.drift_cov),
+                        closed_at=jnp.where(kept, pose_est[:2], graph.closed_at))
   return logodds, graph, pose_est, rebuilt
 
 
@@ -496,14 +500,18 @@ def record(world: World, state: State) -> Record:
   if state.graph is not None:
     g = state.graph
     edges = g.n_nodes - 1 + g.n_loops
+    if g.loop_revoked is not None:  # revoked loop edges are out of the graph (weight 0)
+      edges = edges - jnp.sum(g.loop_revoked, axis=-1)
     total = jnp.sum(g.chain_w) + jnp.sum(g.loop_w)
     graph = dict(graph_nodes=g.n_nodes, graph_edges=edges,
                  dopt_mean=jnp.where(edges > 0, total / jnp.maximum(edges, 1), jnp.nan))
     if g.loop_false is not None:
-      closure = (jnp.arange(g.loop_false.shape[-1]) < g.n_loops[..., None]) & ~g.loop_link
+      loops = jnp.arange(g.loop_false.shape[-1]) < g.n_loops[..., None]
+      closure = loops & ~g.loop_link & ~g.loop_revoked
       graph.update(loop_closures=jnp.sum(closure, axis=-1),
                    false_closures=jnp.sum(g.loop_false & closure, axis=-1),
-                   near_links=jnp.sum(g.loop_link, axis=-1))
+                   near_links=jnp.sum(g.loop_link & ~g.loop_revoked, axis=-1),
+                   revoked=jnp.sum(loops & g.loop_revoked, axis=-1))
   return Record(entropy=state.entropy, distance=state.distance, time=state.time,
                 coverage=state.covered / world.n_reachable, det_cov=linalg.det3(state.cov),
                 pose_error=jnp.linalg.norm(state.pose[:2] - state.pose_est[:2]),

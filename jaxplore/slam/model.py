@@ -401,31 +401,50 @@ def add_loop(graph: PoseGraph, closure: Closure, i) -> PoseGraph:
       loop_measured=put(graph.loop_measured, closure.measured),
       loop_info=put(graph.loop_info, closure.info), loop_false=put(graph.loop_false, closure.false),
       loop_link=put(graph.loop_link, closure.link),
+      loop_revoked=put(graph.loop_revoked, jnp.bool_(False)),
+      loop_chi2=put(graph.loop_chi2, jnp.float32(0.0)),
       n_loops=graph.n_loops + write.astype(jnp.int32),
       loops_dropped=graph.loops_dropped + (closure.found & ~room).astype(jnp.int32))
 
 
 def graph_edges(graph: PoseGraph) -> optimiser.Edges:
-  """The odometry and loop edges of ``graph`` as the optimiser takes them."""
+  """The odometry and loop edges of ``graph`` as the optimiser takes them (revoked loop edges
+  not valid)."""
   assert graph.chain_measured is not None and graph.chain_info is not None  # scan_matching's
   assert graph.loop_measured is not None and graph.loop_info is not None
+  assert graph.loop_revoked is not None
   n_cap = graph.poses.shape[0]
   k = jnp.arange(1, n_cap)
+  loops_in = (jnp.arange(graph.loops.shape[0]) < graph.n_loops) & ~graph.loop_revoked
   return optimiser.Edges(
       src=jnp.concatenate([k - 1, graph.loops[:, 0]]).astype(jnp.int32),
       dst=jnp.concatenate([k, graph.loops[:, 1]]).astype(jnp.int32),
       measured=jnp.concatenate([graph.chain_measured[1:], graph.loop_measured]),
       information=jnp.concatenate([graph.chain_info[1:], graph.loop_info]),
-      valid=jnp.concatenate([k < graph.n_nodes,
-                             jnp.arange(graph.loops.shape[0]) < graph.n_loops]))
+      valid=jnp.concatenate([k < graph.n_nodes, loops_in]))
+
+
+def loop_chi2(graph: PoseGraph):
+  """f32[M] each loop edge's squared Mahalanobis error ``rᵀ Ω r`` at the graph's poses
+  (``r`` GTSAM's ``BetweenFactor`` error, :func:`jaxplore.slam.optimiser.between_error`); 0 for
+  the unused slots. At the optimum of a consistent graph it is about χ² with 3 degrees of freedom
+  or less (the edge shares its error with the rest of the graph)."""
+  assert graph.loop_measured is not None and graph.loop_info is not None
+  n_cap = graph.poses.shape[0]
+  src = jnp.clip(graph.loops[:, 0], 0, n_cap - 1)
+  dst = jnp.clip(graph.loops[:, 1], 0, n_cap - 1)
+  r = jax.vmap(optimiser.between_error)(graph.poses[src], graph.poses[dst], graph.loop_measured)
+  chi2 = jnp.einsum("ei,eij,ej->e", r, graph.loop_info, r)
+  return jnp.where(jnp.arange(graph.loops.shape[0]) < graph.n_loops, chi2, 0.0)
 
 
 WOODBURY_LOOPS = 32
+# The most loop edges one back-end run revokes (each one more optimisation).
+MAX_REVOCATIONS = 3
 
 
-def optimise(config, graph: PoseGraph) -> PoseGraph:
-  """The back end: every keyframe's pose re-estimated from all edges (keyframe 0 fixed)."""
-  assert graph.optimisations is not None  # the scan_matching graph's
+def _optimised(config, graph: PoseGraph) -> PoseGraph:
+  """Every keyframe's pose re-estimated from all edges in the graph (keyframe 0 fixed)."""
   valid = jnp.arange(graph.poses.shape[0]) < graph.n_nodes
   # The preconditioner takes up to WOODBURY_LOOPS closures exactly (a 3K x 3K factorisation
   # per iteration, K the loop slots it covers); any further ones are left to the conjugate
@@ -437,7 +456,41 @@ def optimise(config, graph: PoseGraph) -> PoseGraph:
                               cg_max_iterations=50)
   poses = jnp.where(valid[:, None], result.poses, graph.poses)
   poses = poses.at[:, 2].set(motion.wrap_angle(poses[:, 2]))
-  return graph.replace(poses=poses, optimisations=graph.optimisations + 1)
+  return graph.replace(poses=poses, loop_chi2=loop_chi2(graph.replace(poses=poses)))
+
+
+def optimise(config, params, graph: PoseGraph) -> PoseGraph:
+  """The back end: every keyframe's pose re-estimated from all edges (keyframe 0 fixed), then
+  the graph checked for a loop edge that disagrees with the rest.
+
+  A false loop closure (two alike places taken for one) bends the whole graph to fit it, and
+  Karto keeps it. Here, at the optimum, the loop edge of largest ``rᵀ Ω r`` (:func:`loop_chi2`)
+  is revoked when that exceeds ``loop_revoke_chi2`` (0: never) and the graph optimised again
+  from the poses it had before, up to :data:`MAX_REVOCATIONS` times: the χ² test of a
+  measurement against the graph's prediction, as an incremental smoother such as iSAM applies
+  it. A true closure after a long drift passes it: the drift's uncertainty lets the chain take
+  up its correction."""
+  assert graph.optimisations is not None and graph.loop_revoked is not None
+  start = graph.poses
+
+  def worst(graph):
+    chi2 = jnp.where(graph.loop_revoked, -jnp.inf, graph.loop_chi2)
+    return jnp.argmax(chi2), jnp.max(chi2)
+
+  def disagrees(carry):
+    graph, passes = carry
+    return ((passes < MAX_REVOCATIONS) & (params.loop_revoke_chi2 > 0)
+            & (worst(graph)[1] > params.loop_revoke_chi2))
+
+  def revoke(carry):
+    graph, passes = carry
+    edge = worst(graph)[0]
+    graph = graph.replace(poses=start, loop_revoked=graph.loop_revoked.at[edge].set(True),
+                          loop_w=graph.loop_w.at[edge].set(0.0))
+    return _optimised(config, graph), passes + 1
+
+  graph, _ = jax.lax.while_loop(disagrees, revoke, (_optimised(config, graph), jnp.int32(0)))
+  return graph.replace(optimisations=graph.optimisations + 1)
 
 
 # --- the map from the keyframes ------------------------------------------------------------------
@@ -600,9 +653,9 @@ def rebuild(logodds, robot, graph: PoseGraph, ranges, offsets, origin, res: floa
   return logodds, entropy, covered
 
 
-__all__ = ["COUNT_BLOCK", "END_PUSH_CELLS", "NEIGHBOUR_CELLS", "WOODBURY_LOOPS", "Closure", "Ends",
-           "Sizes", "add_keyframe", "add_loop", "beam_offsets", "close_loop", "crop",
-           "d_optimality_of_information", "end_crossings", "end_points", "facing", "graph_edges",
-           "in_frame", "information", "keyframe_counts", "keyframe_observation", "link_due",
-           "local_map", "loop_armed", "loop_candidates", "optimise", "rebuild", "register",
-           "scan_points", "sizes", "stored_scan"]
+__all__ = ["COUNT_BLOCK", "END_PUSH_CELLS", "MAX_REVOCATIONS", "NEIGHBOUR_CELLS", "WOODBURY_LOOPS",
+           "Closure", "Ends", "Sizes", "add_keyframe", "add_loop", "beam_offsets", "close_loop",
+           "crop", "d_optimality_of_information", "end_crossings", "end_points", "facing",
+           "graph_edges", "in_frame", "information", "keyframe_counts", "keyframe_observation",
+           "link_due", "local_map", "loop_armed", "loop_candidates", "loop_chi2", "optimise",
+           "rebuild", "register", "scan_points", "sizes", "stored_scan"]

@@ -121,14 +121,19 @@ def test_keyframes_edges_and_closures_are_what_the_graph_says(slam_drives):
     assert 10 <= n <= config.graph_nodes
     # The loop list holds the closures and the near links; only a closure is optimised.
     link = np.asarray(g.loop_link[:m])
+    revoked = np.asarray(g.loop_revoked[:m])
     closed = int(np.sum(~link))
-    assert not g.loop_link[m:].any()
+    assert not g.loop_link[m:].any() and not g.loop_revoked[m:].any()
+    # A revoked edge has no weight and no say in the optimisation (slam_model.optimise).
+    assert np.all(np.asarray(g.loop_w[:m])[revoked] == 0)
     # An odometry edge measures the relative pose of consecutive estimates as they were added
     # (optimisations move the poses later; before the first closure they agree).
     first = int(np.argmax(rec.loop_closures > 0)) if m else STEPS
     np.testing.assert_array_less(-1, rec.loop_closures)
-    assert rec.loop_closures[-1] == closed and rec.near_links[-1] == m - closed
-    assert rec.false_closures[-1] == int(np.sum(g.loop_false[:m] & ~link))
+    assert rec.loop_closures[-1] == int(np.sum(~link & ~revoked))
+    assert rec.near_links[-1] == int(np.sum(link & ~revoked))
+    assert rec.revoked[-1] == int(np.sum(revoked))
+    assert rec.false_closures[-1] == int(np.sum(g.loop_false[:m] & ~link & ~revoked))
     # A near link comes after a closure, never before the first.
     if link.any():
       assert not link[0]
@@ -178,11 +183,14 @@ def test_episode_table_carries_the_slam_columns(slam_drives):
   np.testing.assert_allclose(row["ate_m"], accuracy.absolute_trajectory_error(
       g.poses, g.truth, valid), rtol=1e-5)
   link = np.asarray(g.loop_link[:int(g.n_loops)])
-  assert row["loop_closures"] == int(np.sum(~link)) and row["near_links"] == int(np.sum(link))
+  revoked = np.asarray(g.loop_revoked[:int(g.n_loops)])
+  assert row["loop_closures"] == int(np.sum(~link & ~revoked))
+  assert row["near_links"] == int(np.sum(link & ~revoked))
+  assert row["revoked"] == int(np.sum(revoked))
   assert 0 <= row["misplaced_walls"] <= 1
-  assert {"rpe_m_per_m", "false_closures", "false_links", "matches_rejected",
+  assert {"rpe_m_per_m", "false_closures", "false_links", "false_revoked", "matches_rejected",
           "optimisations"} <= set(row.index)
-  assert {"loop_closures", "false_closures", "near_links"} <= set(curves.columns)
+  assert {"loop_closures", "false_closures", "near_links", "revoked"} <= set(curves.columns)
 
 
 def test_rebuilt_map_at_the_true_poses_matches_the_truth(slam_drives):
