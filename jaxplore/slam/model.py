@@ -477,19 +477,24 @@ def optimise(config, params, graph: PoseGraph) -> PoseGraph:
     chi2 = jnp.where(graph.loop_revoked, -jnp.inf, graph.loop_chi2)
     return jnp.argmax(chi2), jnp.max(chi2)
 
-  def disagrees(carry):
+  def again(carry):
     graph, passes = carry
-    return ((passes < MAX_REVOCATIONS) & (params.loop_revoke_chi2 > 0)
-            & (worst(graph)[1] > params.loop_revoke_chi2))
+    return (passes == 0) | ((passes <= MAX_REVOCATIONS) & (params.loop_revoke_chi2 > 0)
+                            & (worst(graph)[1] > params.loop_revoke_chi2))
 
-  def revoke(carry):
+  # One loop for the first optimisation and each one after a revocation: the optimiser is
+  # compiled once (it is most of the SLAM step's compile time).
+  def optimise_once_more(carry):
     graph, passes = carry
     edge = worst(graph)[0]
-    graph = graph.replace(poses=start, loop_revoked=graph.loop_revoked.at[edge].set(True),
-                          loop_w=graph.loop_w.at[edge].set(0.0))
+    revoke = passes > 0  # the first pass optimises the graph as it is
+    revoked = graph.loop_revoked.at[edge].set(graph.loop_revoked[edge] | revoke)
+    graph = graph.replace(poses=start, loop_revoked=revoked,
+                          loop_w=graph.loop_w.at[edge].set(jnp.where(revoke, 0.0,
+                                                                     graph.loop_w[edge])))
     return _optimised(config, graph), passes + 1
 
-  graph, _ = jax.lax.while_loop(disagrees, revoke, (_optimised(config, graph), jnp.int32(0)))
+  graph, _ = jax.lax.while_loop(again, optimise_once_more, (graph, jnp.int32(0)))
   return graph.replace(optimisations=graph.optimisations + 1)
 
 
