@@ -334,7 +334,8 @@ class RunSpec:
   def create(cls, **settings) -> RunSpec:
     """A spec from keyword settings, where None means "the default" (what the CLI passes);
     ``robot_seeds`` without ``robots`` gives one robot per seed; without a ``preset``, a
-    planner that brings its paper's preset (``PlannerSpec.preset``) runs with it."""
+    planner that brings its paper's preset (``PlannerSpec.preset``) runs with it, and without
+    a ``slam`` (here or in ``params``), with its paper's SLAM model (``PlannerSpec.slam``)."""
     unknown = sorted(set(settings) - set(FIELDS))
     if unknown:
       raise ConfigError(f"unknown setting(s) {unknown}; valid: {', '.join(FIELDS)}")
@@ -344,6 +345,11 @@ class RunSpec:
       preset = planner_preset(settings.get("planner", cls.planner))
       if preset is not None:
         settings["preset"] = preset
+    if "slam" not in settings and "slam" not in (settings.get("params") or {}):
+      from jaxplore.planners.base import planner_slam
+      slam = planner_slam(settings.get("planner", cls.planner))
+      if slam is not None:
+        settings["slam"] = slam
     seeds: Any = settings.get("robot_seeds")  # any value; sized ones are counted below
     if "robots" not in settings and hasattr(seeds, "__len__") and not isinstance(seeds, str):
       settings["robots"] = len(seeds)  # one robot per seed

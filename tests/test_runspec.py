@@ -57,7 +57,8 @@ def test_a_setting_is_named_without_saying_whose_it_is(capsys):
   spec = RunSpec.create(planner="li2020", params={"k1": 0.2, "region": "disc", "r_max": 5.0,
                                                  "alpha": 2.0, "r_e": 1.0},
                         planner_params={"v_max": 0.3})
-  assert dict(spec.params) == {"r_max": 5.0, "v_max": 0.3}
+  # (and li2020's own SLAM model: test_an_active_slam_planner_brings_...)
+  assert dict(spec.params) == {"r_max": 5.0, "v_max": 0.3, "slam": "scan_matching"}
   assert dict(spec.planner_params) == {"k1": 0.2, "region": "disc", "alpha": 2.0, "r_e": 1.0}
   same = RunSpec.create(planner="li2020", params={"r_max": 5.0, "v_max": 0.3},
                         planner_params={"k1": 0.2, "region": "disc", "alpha": 2.0, "r_e": 1.0})
@@ -226,6 +227,27 @@ def test_a_planner_brings_its_papers_preset_unless_one_is_named():
   from jaxplore.sweeps import _planners_preset
   assert _planners_preset(["ereg", "reg"]) == "toriz" and _planners_preset("srg") == "toriz"
   assert _planners_preset(["ereg", "li2020"]) is None and _planners_preset(None) is None
+
+
+def test_an_active_slam_planner_brings_the_scan_matching_model_unless_one_is_named():
+  """The papers of li2020, ahmed/ags and the REG family are about active SLAM: their authors ran
+  Karto or slam_toolbox, so the planners run on ``scan_matching`` unless told otherwise; a sweep
+  of planners from different papers runs them all on the project's default, on equal terms."""
+  assert RunSpec.create(planner="ahmed").params["slam"] == "scan_matching"
+  for name in ("li2020", "ags", "ereg", "reg", "srg", "srt"):
+    assert RunSpec.create(planner=name).params["slam"] == "scan_matching", name
+  assert RunSpec.create(planner="ahmed", slam="oracle").params["slam"] == "oracle"
+  assert RunSpec.create(planner="li2020", params={"slam": "oracle"}).params["slam"] == "oracle"
+  for name in ("nearest_frontier", "fd", "frt", "ig", "gpbo", "no_such_planner"):
+    assert "slam" not in RunSpec.create(planner=name).params, name
+  from jaxplore.resolve import resolve
+  assert resolve(RunSpec.create(world="lab", planner="ags", robots=1)).config.slam == \
+      "scan_matching"
+  assert resolve(RunSpec.create(world="lab", planner="ags", robots=1,
+                                slam="oracle")).config.slam == "oracle"
+  from jaxplore.sweeps import _planners_slam
+  assert _planners_slam(["ereg", "ahmed"]) == "scan_matching"
+  assert _planners_slam(["ereg", "nearest_frontier"]) is None and _planners_slam(None) is None
 
 
 def test_the_default_budget_follows_the_walls_of_a_cluttered_map():

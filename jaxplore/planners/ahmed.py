@@ -459,7 +459,7 @@ def plan_ahmed(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -
 
 AHMED = base.planner("ahmed", plan_ahmed, defaults=Weights, summary=SUMMARY_AHMED,
                      settings=Settings(), validate=validate, needs_pose_graph=True,
-                     commits=True)
+                     commits=True, slam="scan_matching")
 
 
 def plan_ags(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> base.Plan:
@@ -469,4 +469,5 @@ def plan_ags(ctx, view: base.BeliefView, robot: base.RobotView, params, key) -> 
 
 
 AGS = base.planner("ags", plan_ags, defaults=AgsWeights, summary=SUMMARY_AGS,
-                   settings=Settings(), validate=validate, needs_pose_graph=True, commits=True)
+                   settings=Settings(), validate=validate, needs_pose_graph=True, commits=True,
+                   slam="scan_matching")

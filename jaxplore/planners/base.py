@@ -190,6 +190,10 @@ class PlannerSpec:
       (:mod:`jaxplore.planners.window`).
     preset: the sensor/robot preset of the planner's paper (:data:`jaxplore.config.PRESETS`),
       used when a run names none; None: the project's default.
+    slam: the SLAM model of the planner's paper (:data:`jaxplore.config.SLAM_MODELS`), used
+      when a run names none: ``"scan_matching"`` for the active-SLAM planners, whose authors ran
+      a graph SLAM (Karto, slam_toolbox) and whose choices change how well the robot knows
+      where it is; None: the project's default (:attr:`jaxplore.config.SimConfig.slam`).
     memory_graph: ``memory_graph(arrays, res, origin) -> graph`` for a planner whose memory
       holds a graph worth drawing over the map (the REG family's exploration graph): ``arrays``
       one robot's memory leaves by their path in the tree (:func:`jaxplore.results.
@@ -214,12 +218,13 @@ class PlannerSpec:
   windowed: bool = False
   preset: str | None = None
   memory_graph: Callable | None = None
+  slam: str | None = None
 
   def _key(self) -> tuple:
     return (self.name, self.plan, tuple(sorted(self.defaults.items())), self.settings,
             self.validate, self.size_settings, self.needs_pose_graph, self.init_memory,
             self.commits, self.step_hook, self.blacklist_on_arrival, self.windowed, self.preset,
-            self.memory_graph)
+            self.memory_graph, self.slam)
 
   def __eq__(self, other) -> bool:
     return isinstance(other, PlannerSpec) and self._key() == other._key()
@@ -372,7 +377,8 @@ def planner(name: str, plan: PlanFn, defaults=None, summary: str = "", *, settin
             needs_pose_graph: bool = False, init_memory: Callable | None = None,
             commits: bool = False, step_hook: Callable | None = None,
             blacklist_on_arrival: bool = False, windowed: bool = False,
-            preset: str | None = None, memory_graph: Callable | None = None) -> PlannerSpec:
+            preset: str | None = None, memory_graph: Callable | None = None,
+            slam: str | None = None) -> PlannerSpec:
   """A planner object for the engine (see :class:`PlannerSpec` for each argument), not
   registered: pass it as ``SimConfig.planner`` or ``jaxplore.run(planner=...)`` directly, or
   list it under its name with :func:`register`.
@@ -393,12 +399,16 @@ def planner(name: str, plan: PlanFn, defaults=None, summary: str = "", *, settin
     defaults = {k: w.default for k, w in weights.items()}
   if settings is not None:
     check_settings(name, settings)
+  from jaxplore.config import SLAM_MODELS
+  if slam is not None and slam not in SLAM_MODELS:
+    raise TypeError(f"planner {name!r}: slam must be one of {', '.join(SLAM_MODELS)} or None, "
+                    f"got {slam!r}")
   return PlannerSpec(
       name=name, plan=plan, defaults=dict(defaults or {}), weights=weights, summary=summary,
       settings=settings, validate=validate, size_settings=size_settings,
       needs_pose_graph=needs_pose_graph, init_memory=init_memory, commits=commits,
       step_hook=step_hook, blacklist_on_arrival=blacklist_on_arrival, windowed=windowed,
-      preset=preset, memory_graph=memory_graph)
+      preset=preset, memory_graph=memory_graph, slam=slam)
 
 
 def register(spec: PlannerSpec | str, *args, **kwargs):
@@ -484,6 +494,16 @@ def planner_preset(name) -> str | None:
 def unregister(name: str) -> None:
   """Removes a planner from the registry (tests that register their own planners)."""
   _REGISTRY.pop(name, None)
+
+
+def planner_slam(name) -> str | None:
+  """The SLAM model a registered planner brings (:attr:`PlannerSpec.slam`); None for an unknown
+  name or a planner that brings none."""
+  if isinstance(name, PlannerSpec):
+    return name.slam
+  load_plugins()
+  spec = _REGISTRY.get(name) if isinstance(name, str) else None
+  return None if spec is None else spec.slam
 
 
 def get_planner(name: str | PlannerSpec) -> PlannerSpec:

@@ -1068,5 +1068,5 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
 LI2020 = base.planner(
     "li2020", plan_li2020, defaults=Weights, settings=Settings(), validate=validate,
     size_settings=size_settings, init_memory=init_memory, step_hook=update_entropy_map,
-    commits=True,
+    commits=True, slam="scan_matching",
     summary="Li et al. 2020: entropy-boundary paths, uncertainty-corrected, max gain")

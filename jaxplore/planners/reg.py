@@ -760,7 +760,7 @@ def exploration_graph(memory, res: float, origin) -> ExplorationGraph:
 
 _COMMON: dict[str, Any] = dict(
     defaults=Weights, settings=SETTINGS, validate=validate, init_memory=init_memory,
-    commits=True, preset="toriz", memory_graph=exploration_graph)
+    commits=True, preset="toriz", memory_graph=exploration_graph, slam="scan_matching")
 
 
 def plan_ereg(ctx, view, robot, params, key, memory):

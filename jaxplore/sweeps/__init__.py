@@ -78,6 +78,17 @@ def _planners_preset(planner):
   return presets.pop() if len(presets) == 1 else None
 
 
+@interrupts.deferred()
+def _planners_slam(planner):
+  """The SLAM model the sweep's planners all bring (``PlannerSpec.slam``), or None: a sweep that
+  compares planners of different papers runs them all on the project's default model."""
+  from jaxplore.planners.base import planner_slam
+  if planner is None:
+    return None
+  models = {planner_slam(name) for name in ([planner] if isinstance(planner, str) else planner)}
+  return models.pop() if len(models) == 1 else None
+
+
 def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False, *, random=None,
           samples=None, random_seed=None, worlds=None, planners=None, chunk_size=None, resume=None,
           config=None, progress=True, devices=None, distributed=False, **run_kwargs) -> SweepResult:
@@ -169,6 +180,9 @@ def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False
     else:
       shared = {k: explicit.get(k) for k in RUN_KEYS}
       shared["preset"] = shared["preset"] or _planners_preset(explicit["planner"])
+      swept = set(explicit["grid"] or {}) | set(explicit["random"] or {})
+      if shared["slam"] is None and "slam" not in swept | set(shared["params"] or {}):
+        shared["slam"] = _planners_slam(explicit["planner"])
       # a name in --set may be any of the sweep's planners' (the base spec names none of them)
       shared["params"], shared["planner_params"] = route_settings(
           shared["params"], shared["planner_params"], explicit["planner"] or RunSpec.planner)
