@@ -75,6 +75,10 @@ def main(argv=None):
                       "dropped and counted in the table)")
   parser.add_argument("--devices", type=int, default=2)
   parser.add_argument("--quick", action="store_true")
+  parser.add_argument("--slam", choices=("oracle", "scan_matching"), default="oracle",
+                      help="the SLAM model of every planner's runs (ahmed's and ags's own is "
+                           "scan_matching, fd's the oracle: one model for all compares them on "
+                           "equal terms); the table here was made on oracle")
   parser.add_argument("--out", default=str(RESULTS / "ahmed_table1"))
   args = parser.parse_args(argv)
   if args.quick:
@@ -108,7 +112,8 @@ def main(argv=None):
     dt = grid.res / PARAMS["v_max"]
     max_steps = int(round(args.minutes * 60.0 / dt))
     for planner in planners:
-      tag = f"{world}_{planner}_r{args.runs}_m{args.minutes:g}_l{args.graph_loops}"
+      tag = (f"{world}_{planner}_r{args.runs}_m{args.minutes:g}_l{args.graph_loops}"
+             + ("" if args.slam == "oracle" else f"_{args.slam}"))
       part_e, part_c = out / f"{tag}.episodes.parquet", out / f"{tag}.curves.parquet"
       if part_e.exists() and part_c.exists():
         episodes.append(pd.read_parquet(part_e))
@@ -119,7 +124,7 @@ def main(argv=None):
       result = runner.run(world=grid, planner=planner, robots=args.runs, preset=None, params=PARAMS,
                           start=start, max_steps=max_steps, pose_noise=True, pose_graph=True,
                           graph_loops=args.graph_loops, robot_seeds=list(range(args.runs)),
-                          devices=args.devices, progress=False, quiet=True)
+                          slam=args.slam, devices=args.devices, progress=False, quiet=True)
       wall = time.perf_counter() - t0
       e = result.episodes.assign(world=world, planner=planner, wall_s=wall, max_steps=max_steps,
                                  start=str(tuple(round(v, 2) for v in start)),

@@ -43,7 +43,7 @@ def main(argv=None):
   def setup(planner):
     grid, config, params, _ = runner.prepare(world=args.world, planner=planner, robots=args.robots,
                                              preset="toriz", max_steps=args.warm_steps + 8,
-                                             params={"coverage_goal": 1.5})
+                                             params={"coverage_goal": 1.5, "slam": "oracle"})
     return grid, config, params
 
   grid, config, params = setup("ereg")

@@ -126,7 +126,9 @@ def main(args) -> int:
   names = list(grid)
   settings = [dict(zip(names, combo)) for combo in itertools.product(*grid.values())]
   n = len(settings)
-  common = dict(world=args.world, res=args.res, planner="li2020", max_steps=args.max_steps)
+  # the oracle, as bench_sweep.md's earlier rows (li2020's own model is now scan_matching)
+  common = dict(world=args.world, res=args.res, planner="li2020", max_steps=args.max_steps,
+                slam="oracle")
   load_before = load_average()
   print(f"{n} settings ({' x '.join(f'{k}:{len(v)}' for k, v in grid.items())}) on {args.world} "
         f"at {args.res} m; load average {load_before}", flush=True)

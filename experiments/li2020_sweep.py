@@ -40,6 +40,9 @@ def main(argv=None):
   parser.add_argument("--max-steps", type=int, default=None, help="default: the runner's budget")
   parser.add_argument("--devices", type=int, default=1)
   parser.add_argument("--quick", action="store_true")
+  parser.add_argument("--slam", choices=("oracle", "scan_matching"), default="oracle",
+                      help="the SLAM model of both sweeps (li2020's own is scan_matching, "
+                           "nearest frontier's the oracle); li2020_sweep.md was made on oracle")
   parser.add_argument("--out", default=str(RESULTS / "li2020_sweep"), help="<out>.md, <out>.png")
   args = parser.parse_args(argv)
   if args.quick:
@@ -59,7 +62,7 @@ def main(argv=None):
   out = Path(args.out)
   runs = out.with_name(out.name + "_runs")
   common = dict(world=args.world, seeds=args.seeds, preset="li2020", res=args.res,
-                max_steps=args.max_steps, devices=args.devices, quiet=True)
+                max_steps=args.max_steps, devices=args.devices, slam=args.slam, quiet=True)
   started = time.perf_counter()
   results = {}
   for name, planner, grid in (

@@ -81,6 +81,10 @@ def main(argv=None):
   parser.add_argument("--quick", action="store_true")
   parser.add_argument("--pose-noise", action="store_true",
                       help="simulated odometry error, scans integrated at the estimated pose")
+  parser.add_argument("--slam", choices=("oracle", "scan_matching"), default="oracle",
+                      help="the SLAM model of every planner's runs (li2020's own is "
+                           "scan_matching, nearest frontier's the oracle: one model for all "
+                           "compares them on equal terms); the table here was made on oracle")
   parser.add_argument("--variants", default="", help=f"extra rows, comma separated: {', '.join(VARIANTS)}")
   parser.add_argument("--variant-worlds", default=None,
                       help="comma separated worlds the --variants run on (default: every world)")
@@ -125,7 +129,8 @@ def main(argv=None):
       r_e = resolve(RunSpec(world=spec, planner=name, robots=1, preset="li2020", res=res,
                             planner_params=weights or {})).config.planner.settings.r_e
       tag = (f"{world}_{planner}_s{args.seeds}_m{max_steps or 'auto'}_re{r_e:.2f}"
-             + ("_pn" if args.pose_noise else ""))
+             + ("_pn" if args.pose_noise else "")
+             + ("" if args.slam == "oracle" else f"_{args.slam}"))
       part_e, part_c = out / f"{tag}.episodes.parquet", out / f"{tag}.curves.parquet"
       if part_e.exists() and part_c.exists():
         episodes.append(pd.read_parquet(part_e))
@@ -136,7 +141,7 @@ def main(argv=None):
       result = jaxplore.run(world=spec, planner=name, robots=args.seeds, seed=0, preset="li2020",
                             res=res, max_steps=max_steps, progress=False, quiet=True,
                             planner_params=weights, robot_seeds=list(range(args.seeds)),
-                            devices=args.devices, pose_noise=args.pose_noise)
+                            devices=args.devices, pose_noise=args.pose_noise, slam=args.slam)
       e = result.episodes.assign(world=world, planner=planner, wall_s=time.perf_counter() - t0,
                                  max_steps=result.config["sim_config"]["max_steps"], r_e=r_e)
       c = result.curves.assign(world=world, planner=planner)

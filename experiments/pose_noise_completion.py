@@ -79,7 +79,8 @@ def main(argv=None):
           result = jaxplore.run(world=world, planner=name, robots=args.robots, seed=0,
                                 preset=args.preset, pose_noise=noise, progress=False, quiet=True,
                                 robot_seeds=list(range(args.robots)), devices=args.devices,
-                                planner_params=weights, max_steps=max_steps)
+                                planner_params=weights, max_steps=max_steps,
+                                slam="oracle")  # the oracle's pose noise is what it measures
           episodes = result.episodes
           episodes.to_parquet(part.with_name(part.name + ".tmp"), index=False)
           os.replace(part.with_name(part.name + ".tmp"), part)

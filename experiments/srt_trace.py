@@ -44,7 +44,8 @@ def tracer(map_label: str, max_steps: int, planner: str = "srt", planner_params=
   world_arg, _ = MAPS[map_label]
   grid, config, params, _ = runner.prepare(
       world=world_arg, planner=planner, robots=1, preset="toriz", pose_noise=pose_noise,
-      max_steps=max_steps, params={"coverage_goal": 1.5}, planner_params=planner_params or {})
+      max_steps=max_steps, params={"coverage_goal": 1.5, "slam": "oracle"},
+      planner_params=planner_params or {})
   world = sim.make_world(grid, float(params.r_robot))
 
   @jax.jit

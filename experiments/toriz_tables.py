@@ -76,7 +76,7 @@ def explored_fraction(grid, logodds, params):
 
 
 def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path: Path,
-            pose_noise: bool = True):
+            pose_noise: bool = True, slam: str = "oracle"):
   """Runs one (map, method) batch, or reads it back from ``path``."""
   import numpy as np
   import pandas as pd
@@ -89,7 +89,7 @@ def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path
   result = jaxplore.run(world=world, planner=method, robots=len(seeds), robot_seeds=list(seeds),
                         preset="toriz", pose_noise=pose_noise, params={"coverage_goal": 1.5},
                         start=launch if start == "fixed" else None, max_steps=max_steps,
-                        progress=False, quiet=True)
+                        slam=slam, progress=False, quiet=True)
   episodes = result.episodes.copy()
   episodes["map"] = map_label
   episodes["method"] = method
@@ -202,6 +202,10 @@ def main(argv=None):
   parser.add_argument("--no-noise", action="store_true",
                       help="pose noise off (the estimate is the truth)")
   parser.add_argument("--quick", action="store_true", help="2 robots on corridors, 2500 steps")
+  parser.add_argument("--slam", choices=("oracle", "scan_matching"), default="oracle",
+                      help="the SLAM model of every method's runs (the REG family's own is "
+                           "scan_matching, nearest frontier's the oracle: one model for all "
+                           "compares them on equal terms); the tables here were made on oracle")
   args = parser.parse_args(argv)
   import pandas as pd
   if args.quick:
@@ -212,6 +216,8 @@ def main(argv=None):
     tag += "_fixed"
   if args.no_noise:
     tag += "_no_noise"
+  if args.slam != "oracle":
+    tag += f"_{args.slam}"
   cache = RESULTS / f"{tag}_tables"
   parts = []
   # Seed chunks outermost: a partial run still gives every map and method its first chunks.
@@ -224,7 +230,7 @@ def main(argv=None):
         path = cache / f"{map_label}_{method}_seeds{span}_m{max_steps}.parquet"
         t0 = time.perf_counter()
         part = run_one(map_label, method, seeds, args.start, max_steps, path,
-                       not args.no_noise)
+                       not args.no_noise, args.slam)
         parts.append(part)
         print(f"{map_label:20s} {method:17s} seeds {span}: time {part.time_s.mean():7.1f} s  "
               f"distance {part.distance_m.mean():6.1f} m  "

@@ -6,8 +6,8 @@ batched LAPACK kernels deadlocked XLA:CPU's thread pool, see ``jaxplore.linalg``
 others finished. A hang fails this test at its time limit instead of stalling CI.
 
 The active-SLAM planners run on the oracle SLAM model here but one (``OWN_SLAM``), which runs on
-its own (scan_matching). The planners run in two processes, half of them each (a test class each: xdist hands the two
-to both workers at once, and each has its own time limit). The one that runs nearest_frontier
+its own (scan_matching). The planners run in two processes, half of them each (a test class
+each: xdist hands the two to both workers at once, and each has its own time limit). The one that runs nearest_frontier
 also checks, with its compiled program, that a batch that does not divide over the devices is
 padded, not run on fewer.
 

@@ -399,10 +399,6 @@ def planner(name: str, plan: PlanFn, defaults=None, summary: str = "", *, settin
     defaults = {k: w.default for k, w in weights.items()}
   if settings is not None:
     check_settings(name, settings)
-  from jaxplore.config import SLAM_MODELS
-  if slam is not None and slam not in SLAM_MODELS:
-    raise TypeError(f"planner {name!r}: slam must be one of {', '.join(SLAM_MODELS)} or None, "
-                    f"got {slam!r}")
   return PlannerSpec(
       name=name, plan=plan, defaults=dict(defaults or {}), weights=weights, summary=summary,
       settings=settings, validate=validate, size_settings=size_settings,

@@ -494,8 +494,9 @@ def optimise(config, params, graph: PoseGraph) -> PoseGraph:
                                                                      graph.loop_w[edge])))
     return _optimised(config, graph), passes + 1
 
+  optimisations = graph.optimisations + 1
   graph, _ = jax.lax.while_loop(again, optimise_once_more, (graph, jnp.int32(0)))
-  return graph.replace(optimisations=graph.optimisations + 1)
+  return graph.replace(optimisations=optimisations)
 
 
 # --- the map from the keyframes ------------------------------------------------------------------

@@ -43,7 +43,8 @@ def episodes():
             "room": generate.floor_plan(SIDE, SIDE, RES, ROOM, name="room")}
   _, config, params, _ = runner.prepare(world=worlds["tee"], planner="ereg", robots=1,
                                         preset="toriz", max_steps=MAX_STEPS,
-                                        params={"coverage_goal": 1.5}, plan_window=0)
+                                        params={"coverage_goal": 1.5, "slam": "oracle"},
+                                        plan_window=0)
 
   @jax.jit
   def start(world, key, pose):
