@@ -145,7 +145,9 @@ class SimConfig:
                         static=True, choices=tuple(SENSORS), objects=RaySensor)
   slam: str = setting("oracle", "the SLAM model: oracle relocalises by the true pose; "
                       "scan_matching runs a graph SLAM on the robot's own map (turns pose_noise "
-                      "on)", owner="slam", static=True, choices=SLAM_MODELS)
+                      "on); the planner's paper's where it brings one (li2020, ahmed, ags and "
+                      "the REG family: scan_matching)", owner="slam", static=True,
+                      choices=SLAM_MODELS)
   slam_match_beams: int = setting(90, "scan points a match scores (every n_beams // "
                                   "slam_match_beams-th beam)", owner="slam", static=True, ge=1,
                                   integer=True)
