@@ -341,13 +341,13 @@ class RunSpec:
       raise ConfigError(f"unknown setting(s) {unknown}; valid: {', '.join(FIELDS)}")
     settings = {k: v for k, v in settings.items() if v is not None}
     if "preset" not in settings:
-      from jaxplore.planners.base import planner_preset
-      preset = planner_preset(settings.get("planner", cls.planner))
+      from jaxplore.planners.base import planner_brings
+      preset = planner_brings(settings.get("planner", cls.planner), "preset")
       if preset is not None:
         settings["preset"] = preset
     if "slam" not in settings and "slam" not in (settings.get("params") or {}):
-      from jaxplore.planners.base import planner_slam
-      slam = planner_slam(settings.get("planner", cls.planner))
+      from jaxplore.planners.base import planner_brings
+      slam = planner_brings(settings.get("planner", cls.planner), "slam")
       if slam is not None:
         settings["slam"] = slam
     seeds: Any = settings.get("robot_seeds")  # any value; sized ones are counted below

@@ -477,29 +477,20 @@ def load_plugins() -> None:
                         f"{type(err).__name__}: {err}") from err
 
 
-def planner_preset(name) -> str | None:
-  """The preset a registered planner brings (:attr:`PlannerSpec.preset`); None for an unknown
-  name (refused later, where the planner is looked up)."""
+def planner_brings(name, what: str) -> str | None:
+  """What a planner brings for a run that names none: its paper's ``"preset"``
+  (:attr:`PlannerSpec.preset`) or ``"slam"`` model (:attr:`PlannerSpec.slam`); None for a
+  planner that brings none, or an unknown name (refused later, where the planner is looked up)."""
   if isinstance(name, PlannerSpec):
-    return name.preset
+    return getattr(name, what)
   load_plugins()
   spec = _REGISTRY.get(name) if isinstance(name, str) else None
-  return None if spec is None else spec.preset
+  return None if spec is None else getattr(spec, what)
 
 
 def unregister(name: str) -> None:
   """Removes a planner from the registry (tests that register their own planners)."""
   _REGISTRY.pop(name, None)
-
-
-def planner_slam(name) -> str | None:
-  """The SLAM model a registered planner brings (:attr:`PlannerSpec.slam`); None for an unknown
-  name or a planner that brings none."""
-  if isinstance(name, PlannerSpec):
-    return name.slam
-  load_plugins()
-  spec = _REGISTRY.get(name) if isinstance(name, str) else None
-  return None if spec is None else spec.slam
 
 
 def get_planner(name: str | PlannerSpec) -> PlannerSpec:

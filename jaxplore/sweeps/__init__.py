@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import sys
 from pathlib import Path
 
@@ -69,24 +70,20 @@ class SweepResult:
 
 
 @interrupts.deferred()
-def _planners_preset(planner):
-  """The preset the sweep's planners all bring (``PlannerSpec.preset``), or None."""
-  from jaxplore.planners.base import planner_preset
+def _planners_bring(planner, what: str):
+  """What the sweep's planners all bring (``planner_brings``: their paper's ``"preset"`` or
+  ``"slam"`` model), or None: a sweep that compares planners of different papers runs them all
+  on the project's default."""
+  from jaxplore.planners.base import planner_brings
   if planner is None:
     return None
-  presets = {planner_preset(name) for name in ([planner] if isinstance(planner, str) else planner)}
-  return presets.pop() if len(presets) == 1 else None
+  found = {planner_brings(name, what)
+           for name in ([planner] if isinstance(planner, str) else planner)}
+  return found.pop() if len(found) == 1 else None
 
 
-@interrupts.deferred()
-def _planners_slam(planner):
-  """The SLAM model the sweep's planners all bring (``PlannerSpec.slam``), or None: a sweep that
-  compares planners of different papers runs them all on the project's default model."""
-  from jaxplore.planners.base import planner_slam
-  if planner is None:
-    return None
-  models = {planner_slam(name) for name in ([planner] if isinstance(planner, str) else planner)}
-  return models.pop() if len(models) == 1 else None
+_planners_preset = functools.partial(_planners_bring, what="preset")
+_planners_slam = functools.partial(_planners_bring, what="slam")
 
 
 def sweep(grid=None, seeds=None, world=None, planner=None, out=None, quiet=False, *, random=None,
