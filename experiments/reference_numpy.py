@@ -531,7 +531,7 @@ class ReferenceSimulator:
     elif has_waypoint and arrived:
       robot.path_idx += 1
     robot.cov = propagate_covariance(robot.cov, robot.pose, new_pose, delta_d, delta_phi,
-                                     p["sigma_d"], p["sigma_phi"])
+                                     p["odom_noise_d"], p["odom_noise_phi"])
     robot.pose = new_pose
     robot.steps += 1
     robot.idle_steps += int(not busy)

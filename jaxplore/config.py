@@ -282,16 +282,14 @@ class Params:
                     owner="robot", unit="s", gt=0)
   r_robot: Any = setting(0.2, "the robot's radius: paths keep this clear of believed walls",
                          owner="robot", unit="m", ge=0)
-  sigma_d: Any = setting(1.0, "Li et al. Eq 16: the planning model's std per metre driven, for "
-                         "the covariance Σ", owner="localisation", ge=0)
-  sigma_phi: Any = setting(1.0, "and per radian turned", owner="localisation", ge=0)
-  # The simulated odometry error with ``pose_noise`` (not Li's V_n, a 100 % std per metre):
-  # zero-mean Gaussian increments of a wheeled robot whose SLAM front end keeps the error to a
-  # few percent, corrected further by relocalisation.
-  odom_noise_d: Any = setting(0.03, "simulated odometry: std of the distance (and lateral) error "
-                              "per metre driven", owner="odometry", ge=0)
-  odom_noise_phi: Any = setting(0.03, "simulated odometry: std of the heading error per radian "
-                                "turned", owner="odometry", ge=0)
+  # One odometry noise model: zero-mean Gaussian increments of a wheeled robot, Li et al.'s V_n
+  # (Eq 16, with these scales) for the covariance Σ of Eq 17 and li2020's paths, the odometry
+  # edges of the pose graph, and, with ``pose_noise``, the simulated odometry error.
+  odom_noise_d: Any = setting(0.03, "odometry: std of the distance (and lateral) error per metre "
+                              "driven (Li et al. Eq 16's V_n; simulated with pose noise)",
+                              owner="odometry", ge=0)
+  odom_noise_phi: Any = setting(0.03, "odometry: std of the heading error per radian turned",
+                                owner="odometry", ge=0)
   sigma0: Any = setting(1e-4, "the initial pose covariance (diagonal)", owner="localisation",
                         unit="m², rad²", gt=0)
   reloc_min_hits: Any = setting(20.0, "oracle SLAM: beams that must end on well-mapped occupied "

@@ -9,8 +9,8 @@ with Karto's settings from the authors' configuration:
   displacement is at most the distance and turn travelled, which gives a run's keyframe count an
   a-priori bound (:func:`keyframe_bound`);
 * an odometry edge from the previous keyframe, of covariance ``σ_sm²·I`` (the scan matcher) plus
-  the covariance of the simulated odometry error accumulated since that keyframe (Li Eq 16's
-  form with the ``odom_noise_*`` scales, not Li's planning ``V_n``); under the
+  the odometry covariance ``Σ V_n`` accumulated since that keyframe (Li Eq 16, scaled by the
+  ``odom_noise_*`` settings: the one odometry noise model, also the simulated one); under the
   ``scan_matching`` model the edge carries the scan match's covariance instead
   (:mod:`jaxplore.slam.model`);
 * a loop-closure edge when a new keyframe is within ``loop_radius`` of a keyframe at least

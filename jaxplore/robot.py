@@ -731,9 +731,10 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
   path_idx = path_idx + (busy & has_waypoint & drive.arrived).astype(jnp.int32)
 
   # Odometry: the estimate is dead-reckoned from the (possibly noisy) increment; Σ by Eq 17
-  # with Li's planning model V_n, the simulated error from the odometry noise parameters.
+  # with V_n of Eq 16 scaled by the odometry noise, the error simulated with pose noise.
   odo = motion.increment(delta_d, delta_phi)
-  v_n = motion.odometry_covariance(delta_d, delta_phi, params.sigma_d, params.sigma_phi)
+  v_n = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
+                                   params.odom_noise_phi)
   if config.pose_noise:
     error_std = jnp.stack([params.odom_noise_d * jnp.abs(delta_d),
                            params.odom_noise_d * jnp.abs(delta_d),
@@ -775,18 +776,15 @@ def step(config: SimConfig, world: World, params: Params, state: State) -> tuple
                         time=state.time + jnp.where(busy, params.dt, 0.0),
                         distance=state.distance + delta_d,
                         collisions=state.collisions + collided.astype(jnp.int32))
-  odometry_cov = motion.odometry_covariance(delta_d, delta_phi, params.odom_noise_d,
-                                            params.odom_noise_phi)
   # The measured increment, its covariance and the estimate it moved (the SLAM model's input).
   state = _sense(config, world, params, state, k_sense, busy,
-                 odometry=(odo, odometry_cov, estimate_before))
+                 odometry=(odo, v_n, estimate_before))
   state = _watch_stall(params, state, delta_d)
   if config.graph_nodes and config.slam == "oracle":
-    # Keyframes at the estimate after relocalisation; odometry edges with the covariance of the
-    # simulated odometry error (Eq 16's form, not Li's planning scale); line of sight in the updated
-    # belief, sampled at most half a cell apart (loop_radius <= max_loop_cells * res).
+    # Keyframes at the estimate after relocalisation; odometry edges with V_n; line of sight in
+    # the updated belief, sampled at most half a cell apart (loop_radius <= max_loop_cells * res).
     state = state.replace(graph=posegraph.observe(
-        state.graph, state.pose_est, odometry_cov, motion.increment(delta_d, delta_phi), busy,
+        state.graph, state.pose_est, v_n, motion.increment(delta_d, delta_phi), busy,
         state.logodds, world.origin, res, params, 2 * config.max_loop_cells + 2))
   state = _step_hook(config, world, params, state, busy, running)
   state = _check_complete(world, params, state)

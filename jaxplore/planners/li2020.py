@@ -50,10 +50,12 @@ becoming known ends its episode as exhausted, with ``stuck`` set in its memory. 
 robot can drive back and forth for ever between two places whose regions still hold entropy
 that no scan can remove (unknown cells behind a wall within ``R_e`` of a waypoint, with the
 ``disc`` region; cells a sight chain of the ``visible`` region reaches round a wall corner).
-With the ``beams`` region and a path's gain taken beyond the robot's own region, what it still
-ends is mostly the Eq 22 fallback's trips: where Eq 18–19 cut every candidate short of the
-unexplored space (``det_sigma_max``), the robot drives to the best re-explore path's end, in
-mapped space by design, and back (docs/papers/li2020.md).
+With the ``beams`` region and a path's gain taken beyond the robot's own region, what it
+ended was mostly the Eq 22 fallback's trips where Eq 18–19 cut every candidate short of the
+unexplored space (the robot drives to the best re-explore path's end, in mapped space by design,
+and back): with this project's earlier Σ_max and unscaled V_n, winding paths were cut within
+metres. With Σ_max derived from the SLAM model (``DET_SIGMA_MAX``) that is rare
+(docs/papers/li2020.md).
 
 Cells counted in the gain: known cells, and unknown cells within ``R_e`` of a free cell through
 unknown cells (:func:`observable_cells`). Unknown cells inside walls or outside the building can
@@ -78,6 +80,20 @@ from jaxplore.graph.tree import nearest_ancestor, path_sums
 from jaxplore.planners import base
 from jaxplore.settings import LENGTH_LIMIT_M, check_length, setting
 
+# Eq 18-19's Σ_max, which Li et al. do not give, in the units and noise model of the SLAM model:
+# the uncertainty at which the robot could still find its place again. Σ (Eq 17) is what dead
+# reckoning along a path would reach with V_n of the odometry noise (``odom_noise_*``) if no scan
+# matched on the way; the scan_matching model's loop closure searches 3σ of such drift, at most
+# ``loop_search_m`` = 2 m and ``slam_max_angle`` = 0.349 rad (Karto's coarse angle offset). So
+# Σ_max = diag(σ², σ², σ_θ²) with σ = 2/3 m, σ_θ = 0.349/3 rad: det Σ_max = 2.67e-3. With
+# the default 3 % noise and Σ_0 = 1e-4·I (a NumPy loop of Eq 17 as :func:`path_geometry` takes
+# it: δd per 0.1 m cell, δφ at road-mark points 0.5 m apart), a straight path never reaches it;
+# one turning by 90° every 1 m does after 35 m, every 4 m after 48 m, every 8 m after 56 m; from
+# Σ_0 = 1e-2·I (a robot whose scans did not match for a while) after 26, 32 and 34 m. When the
+# robot's own Σ is past it, Eq 22 sends it back to mapped space.
+SIGMA_MAX_XY, SIGMA_MAX_THETA = 2.0 / 3.0, 0.349 / 3.0
+DET_SIGMA_MAX = SIGMA_MAX_XY ** 4 * SIGMA_MAX_THETA ** 2
+
 
 @dataclasses.dataclass(frozen=True)
 class Weights:
@@ -92,8 +108,10 @@ class Weights:
   k2: float = setting(0.6, "Eq 8: weight of edges into grid-map boundaries B_g", gt=0, lt=1)
   tau_e: float = setting(0.6, "Eq 4: entropy threshold of the entropy boundaries B_e",
                          unit="nats", ge=0)
-  det_sigma_max: float = setting(1e2, "Eq 19: det Σ_max, a path is cut where det Σ exceeds it "
-                                 "(this project's value, not Li's)", unit="m²·m²·rad²", gt=0)
+  det_sigma_max: float = setting(
+      DET_SIGMA_MAX, "Eq 19: det Σ_max, a path is cut where det Σ exceeds it (default: "
+      "Σ_max = diag(σ², σ², σ_θ²), σ a third of loop_search_m's 2 m and σ_θ of slam_max_angle's "
+      "0.349 rad: a drift a loop closure's search still covers at 3σ)", unit="m²·m²·rad²", gt=0)
   select: float = setting(0.0, "0: the candidate of largest gain; 1: of largest gain per metre",
                           ge=0, le=1, integer=True)
   e_min: float = setting(0.0, "stop when the average observable entropy falls below this "
@@ -114,12 +132,6 @@ DEFAULTS = {f.name: f.default for f in dataclasses.fields(Weights)}
 # bench_accelerator_gpu.md ("visible gains in blocks of 8").
 VISIBLE_BLOCK = {"per_robot": 2, "lockstep": 8}
 
-# det Σ_max = 1e2 (m²·m²·rad²) is this project's choice, not Li's (the paper gives no value).
-# What it means with Eq 16 at σ_d = σ_φ = 1, Σ_0 = 1e-4·I and 0.1 m cells (a NumPy loop of
-# Eq 17, road-mark points every 0.5 m / every cell): a straight path never reaches it (det Σ is
-# 1.6e-3 after 40 m), nor does one with a single 90° turn within 40 m; a path turning by 90°
-# every 1 m reaches it after 6.3 m / 5.1 m, every 4 m after 12.2 m / 10.3 m; a staircase of
-# slope 1/2 (a straight line on the grid) after 22.9 m / 3.5 m.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,11 +197,13 @@ class Settings:
 def init_memory(ctx, params):
   """A robot's memory: the entropy map ``I_e`` (f32[H, W], every cell unknown: ln 2), and the
   progress timeout's unknown cells at the last progress, metres driven since, where the robot
-  planned last (once it has), and whether the timeout ended the episode."""
+  planned last (once it has), and whether the timeout ended the episode; and counts of its
+  plans: all, those whose path Eq 18-19 cut short, and Eq 22's re-explore plans."""
   return {"entropy_map": jnp.full((ctx.height, ctx.width), mapping.LN2, jnp.float32),
           "unknown": jnp.int32(ctx.height * ctx.width), "driven": jnp.float32(0.0),
           "xy": jnp.zeros((2,), jnp.float32), "planned": jnp.bool_(False),
-          "stuck": jnp.bool_(False)}
+          "stuck": jnp.bool_(False), "plans": jnp.int32(0), "cut_plans": jnp.int32(0),
+          "reexplore_plans": jnp.int32(0)}
 
 
 def r_e_cells(ctx) -> float:
@@ -895,8 +909,8 @@ def path_geometry(config, robot, params, pred):
   delta_d = jnp.where(has_parent,
                       res * jnp.sqrt((d_row * d_row + d_col * d_col).astype(jnp.float32)), 0.0)
 
-  a = (params.sigma_d * delta_d) ** 2
-  b = (params.sigma_phi * delta_phi) ** 2
+  a = (params.odom_noise_d * delta_d) ** 2
+  b = (params.odom_noise_phi * delta_phi) ** 2
   x, y = xy[:, 0], xy[:, 1]
   sums = path_sums(pred_flat, jnp.stack([delta_d, a, b, b * x, b * y, b * x * x, b * y * y,
                                          b * x * y], -1))
@@ -991,6 +1005,9 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   cut = jnp.where(boundary, cut, -1)
   candidates = jnp.zeros((h * w,), bool).at[jnp.where(cut >= 0, cut, h * w)].set(True, mode="drop")
   candidates = candidates & (idx != root)
+  # The candidates that are the corrected end of a longer path (Eq 18's m* < m).
+  cut_short = jnp.zeros((h * w,), bool).at[jnp.where((cut >= 0) & (cut != idx), cut, h * w)].set(
+      True, mode="drop")
 
   # The Eq 20 gain of every path, then, only where no candidate gains (Eq 22's fallback), the
   # re-explore metric: one channel of cell gains per pass of the same loop. The second pass, a
@@ -1047,6 +1064,7 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
   progressed = unknown < memory["unknown"]
   driven = jnp.where(progressed, 0.0, memory["driven"] + step)
   stuck = (weights["progress_m"] > 0) & (driven > weights["progress_m"])
+  counts = {name: memory[name] for name in ("plans", "cut_plans", "reexplore_plans")}
   memory = {"entropy_map": entropy_map, "unknown": jnp.minimum(unknown, memory["unknown"]),
             "driven": driven,
             "xy": robot.pose[:2].astype(jnp.float32), "planned": jnp.bool_(True),
@@ -1054,6 +1072,10 @@ def plan_li2020(config, view: base.BeliefView, robot: base.RobotView, params, ke
 
   chosen = jnp.where(explore, best, fallback)
   valid = (explore | can_fallback) & ~converged & ~stuck
+  count = lambda name, happened: counts[name] + happened.astype(jnp.int32)
+  memory.update(plans=count("plans", valid), cut_plans=count("cut_plans", valid & explore &
+                                                               cut_short[best]),
+                reexplore_plans=count("reexplore_plans", valid & ~explore))
   goal = jnp.stack([chosen // w, chosen % w]).astype(jnp.int32)
   cells, length_wp = extract_path(sp.pred, goal, config.path_capacity, source=robot.cell)
   look_at = frontiers.unknown_neighbour(goal, view.unknown, view.occupied)

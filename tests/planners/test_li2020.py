@@ -72,6 +72,12 @@ def params_for(**planner):
   return make_params(r_robot=0.2, planner=dict(li2020.DEFAULTS, **planner))
 
 
+def unscaled(params):
+  """Li's V_n of Eq 16 as printed (σ = 1: the std of a step is its length), so that Σ grows
+  within the few metres of a hand-made map."""
+  return params.replace(odom_noise_d=jnp.float32(1.0), odom_noise_phi=jnp.float32(1.0))
+
+
 def robot_at(cell, theta=0.3, cov=1e-4):
   return base.RobotView(pose=jnp.asarray([0.0, 0.0, theta], jnp.float32), cell=jnp.asarray(cell, jnp.int32),
                         cov=jnp.eye(3, dtype=jnp.float32) * cov)
@@ -154,7 +160,7 @@ def numpy_cov_along(cells, theta0, cov0, res, sigma_d, sigma_phi, spacing=1):
 @pytest.mark.parametrize("road_mark_m", [0.0, 0.5])
 def test_tree_covariance_matches_numpy_loop_of_eq17(road_mark_m):
   params = params_for()
-  params = params.replace(sigma_d=jnp.float32(0.5), sigma_phi=jnp.float32(0.3))
+  params = params.replace(odom_noise_d=jnp.float32(0.5), odom_noise_phi=jnp.float32(0.3))
   _, l, entropy = belief(2)
   view = make_view(l, entropy, params)
   b_e, b_g = li2020.boundaries(view, jnp.asarray(entropy), jnp.float32(0.4))
@@ -217,8 +223,8 @@ def test_tree_gain_equals_exact_union_on_open_ground():
 @pytest.mark.parametrize("transform, select", [(lambda f: f, 0.0), (jax.jit, 0.0), (jax.jit, 1.0)],
                          ids=["eager-0.0", "jit-0.0", "jit-1.0"])
 def test_plan_is_safe_and_within_the_covariance_limit(transform, select):
-  det_max = 1.0  # cuts candidate paths after about a metre here (most get cut)
-  params = params_for(select=select, det_sigma_max=det_max)
+  det_max = 1.0  # with Li's V_n unscaled: cuts candidate paths after about a metre here
+  params = unscaled(params_for(select=select, det_sigma_max=det_max))
   state, l, entropy = belief(5)
   view = make_view(l, entropy, params)
   robot = robot_at((5, 15), cov=1e-3)
@@ -374,6 +380,65 @@ def test_gain_per_metre_never_takes_a_step_of_a_few_cells_while_a_farther_fronti
   assert float(plan.gain) > 0.5
 
 
+def branching_corridor():
+  """Walls everywhere but an east-west corridor (rows 2-6) and a branch south from it
+  (columns 17-21): a little unknown space at the corridor's east end, more down the branch."""
+  l = np.full((H, W), 3.0, np.float32)
+  l[2:7, 1:33] = -3.0
+  l[7:25, 17:22] = -3.0
+  l[2:7, 31:33] = 0.0
+  l[14:25, 17:22] = 0.0
+  return l, np.where(l == 0.0, math.log(2), 0.3).astype(np.float32)
+
+
+def test_a_path_is_cut_where_the_covariance_grows_past_the_default_limit():
+  """Eq 18-19 at the defaults (Σ_max from the loop closure's search window, V_n of the 3 %
+  odometry noise). A robot facing east in a corridor: the unknown space down the south branch
+  gains the most, the little at the corridor's end less. Well localised, the robot takes the
+  branch. With its heading variance at 95 % of σ_θ,max² (its scans did not match for a while),
+  the branch's turn (Eq 16's δφ) takes det Σ past det Σ_max (a NumPy loop of Eq 17), the
+  branch's path is cut short of its gain, and the robot drives straight on, where det Σ grows
+  by the distance terms only."""
+  params = params_for()
+  l, entropy = branching_corridor()
+  view = make_view(l, entropy, params)
+  det_max = li2020.DET_SIGMA_MAX
+  assert float(params.planner["det_sigma_max"]) == pytest.approx(det_max)
+  grown = np.diag([li2020.SIGMA_MAX_XY ** 2, li2020.SIGMA_MAX_XY ** 2,
+                   0.95 * li2020.SIGMA_MAX_THETA ** 2]).astype(np.float32)
+  spacing = li2020.road_mark_cells(CONFIG)
+  ends = {}
+  for name, cov in [("localised", np.eye(3, dtype=np.float32) * 1e-4), ("grown", grown)]:
+    robot = base.RobotView(pose=jnp.asarray([0.0, 0.0, 0.0], jnp.float32),
+                           cell=jnp.asarray((4, 4), jnp.int32), cov=jnp.asarray(cov))
+    plan, memory = PLAN(CONFIG, view, robot, params, jax.random.PRNGKey(0),
+                        memory_for(CONFIG, params, entropy))
+    cells = np.asarray(plan.waypoints)[:int(plan.length)]
+    assert bool(plan.valid) and float(plan.gain) > 0.1 and int(memory["reexplore_plans"]) == 0
+    covs = numpy_cov_along(cells, 0.0, cov, CONFIG.res, 0.03, 0.03, spacing)
+    assert max(np.linalg.det(c) for c in covs) <= det_max * (1 + 1e-4)
+    ends[name] = (tuple(cells[-1]), float(plan.gain), cells, covs)
+  (south, south_gain, south_cells, _), (east, east_gain, _, _) = ends["localised"], ends["grown"]
+  assert south[0] >= 12 and 17 <= south[1] <= 21  # down the branch
+  assert east[0] <= 6 and east[1] >= 28 and east_gain < south_gain  # on to the corridor's end
+  # the branch's path from the grown covariance passes the limit after its turn
+  from_grown = numpy_cov_along(south_cells, 0.0, grown, CONFIG.res, 0.03, 0.03, spacing)
+  assert np.linalg.det(from_grown[-1]) > det_max
+  # Without the corridor's end, the branch is the only way: the plan is its path, cut short of
+  # the unknown space (rows 14 on) where det Σ reaches the limit, and counted as cut.
+  l[2:7, 31:33] = -3.0
+  entropy = np.where(l == 0.0, math.log(2), 0.3).astype(np.float32)
+  robot = base.RobotView(pose=jnp.asarray([0.0, 0.0, 0.0], jnp.float32),
+                         cell=jnp.asarray((4, 4), jnp.int32), cov=jnp.asarray(grown))
+  plan, memory = PLAN(CONFIG, make_view(l, entropy, params), robot, params,
+                      jax.random.PRNGKey(0), memory_for(CONFIG, params, entropy))
+  cells = np.asarray(plan.waypoints)[:int(plan.length)]
+  assert bool(plan.valid) and 7 <= cells[-1][0] < 14 and 17 <= cells[-1][1] <= 21
+  assert int(memory["cut_plans"]) == 1 and int(memory["plans"]) == 1
+  covs = numpy_cov_along(cells, 0.0, grown, CONFIG.res, 0.03, 0.03, spacing)
+  assert np.linalg.det(covs[-1]) <= det_max * (1 + 1e-4)
+
+
 def test_entropy_left_only_where_the_robot_stands_leads_to_the_reexplore_fallback():
   """Algorithm 1, lines 19-21, on a hand-made room: every candidate path is cut (Eq 18-19) about
   a metre out, short of the unknown space, and the only entropy the cut paths reach is the
@@ -383,7 +448,7 @@ def test_entropy_left_only_where_the_robot_stands_leads_to_the_reexplore_fallbac
   the robot's own region in every path made each cut path 'gain' (intel: a robot shuttled
   between two cells for 2,000 steps, its disc holding unknown cells no beam reaches)."""
   det_max = 1.2  # Σ_0 = I: det Σ reaches it after about a metre (Eq 17, det ≈ (1 + 0.1 d)² · 1)
-  params = params_for(det_sigma_max=det_max, h0=0.1)
+  params = unscaled(params_for(det_sigma_max=det_max, h0=0.1))
   robot = robot_at((8, 5), theta=0.0, cov=1.0)
   # Entropy within 2 cells of the robot: a path that turns back into its R_e disc (3 cells) after
   # leaving it would count the rim again (path_gains' one caveat), not these cells.
