@@ -45,9 +45,16 @@ MAPS = {
     "corridor": (str(BLUEPRINTS / "corridor.yaml"), "8,8,0"),
     "loop_with_corridor": (str(BLUEPRINTS / "loop_with_corridor.yaml"), "8,8,0"),
 }
-METHODS = ("ereg", "reg", "srg", "srt", "nearest_frontier")
+METHODS = ("ereg", "reg", "srg", "srt", "nearest_frontier", "ereg_lsr", "reg_lsr")
 LABELS = {"ereg": "Extended REG", "reg": "REG", "srg": "SRG", "srt": "SRT",
-          "nearest_frontier": "nearest frontier"}
+          "nearest_frontier": "nearest frontier", "ereg_lsr": "Extended REG, LSR arcs only",
+          "reg_lsr": "REG, LSR arcs only"}
+# Ablations (not run unless named in --methods): a method's planner with settings of its own.
+# ``*_lsr``: the free arcs of the paper, closed by the local safe regions alone (no belief
+# arcs, no shadow edges).
+VARIANTS = {"ereg_lsr": ("ereg", {"belief_arcs": False, "shadow_arcs": False}),
+            "reg_lsr": ("reg", {"belief_arcs": False, "shadow_arcs": False})}
+DEFAULT_METHODS = METHODS[:5]
 
 # The paper's Tables 1-3 (LIRMM, 30 runs): mean, sample std, min, max, recomputed from its
 # per-run columns.
@@ -85,9 +92,11 @@ def run_one(map_label: str, method: str, seeds, start: str, max_steps: int, path
   if path.exists():
     return pd.read_parquet(path)
   world, launch = MAPS[map_label]
+  planner, settings = VARIANTS.get(method, (method, {}))
   t0 = time.perf_counter()
-  result = jaxplore.run(world=world, planner=method, robots=len(seeds), robot_seeds=list(seeds),
-                        preset="toriz", pose_noise=pose_noise, params={"coverage_goal": 1.5},
+  result = jaxplore.run(world=world, planner=planner, robots=len(seeds), robot_seeds=list(seeds),
+                        preset="toriz", pose_noise=pose_noise,
+                        params={"coverage_goal": 1.5, **settings},
                         start=launch if start == "fixed" else None, max_steps=max_steps,
                         slam=slam, progress=False, quiet=True)
   episodes = result.episodes.copy()
@@ -145,14 +154,15 @@ def tables(episodes) -> str:
         p = PAPER[method]
         lines.append(f"| *paper (LIRMM)* | 30 | *{fmt(p['time'])}* | *{fmt(p['distance'])}* | "
                      f"*{fmt(p['coverage'])}* | | | | |")
-    e, r = group[group.method == "ereg"], group[group.method == "reg"]
-    if len(e) and len(r):
-      time_change = 100 * (e.time_s.mean() / r.time_s.mean() - 1)
-      distance_change = 100 * (e.distance_m.mean() / r.distance_m.mean() - 1)
-      lines += ["", f"Extended REG vs REG: time {time_change:+.0f} %, "
-                f"distance {distance_change:+.0f} %, "
-                f"std of time {e.time_s.std():.1f} vs {r.time_s.std():.1f} s "
-                f"(paper: -25 %, -16 %, 14.2 vs 37.9 s)."]
+    for suffix, what in (("", ""), ("_lsr", ", LSR arcs only")):
+      e, r = group[group.method == "ereg" + suffix], group[group.method == "reg" + suffix]
+      if len(e) and len(r):
+        time_change = 100 * (e.time_s.mean() / r.time_s.mean() - 1)
+        distance_change = 100 * (e.distance_m.mean() / r.distance_m.mean() - 1)
+        lines += ["", f"Extended REG vs REG{what}: time {time_change:+.0f} %, "
+                  f"distance {distance_change:+.0f} %, "
+                  f"std of time {e.time_s.std():.1f} vs {r.time_s.std():.1f} s "
+                  f"(paper: -25 %, -16 %, 14.2 vs 37.9 s)."]
     lines.append("")
   return "\n".join(lines)
 
@@ -192,7 +202,8 @@ def main(argv=None):
   parser.add_argument("--chunk", type=int, default=10,
                       help="robots per batched run; seeds run (and are cached) in such chunks")
   parser.add_argument("--maps", default=",".join(MAPS))
-  parser.add_argument("--methods", default=",".join(METHODS))
+  parser.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                      help=f"of {', '.join(METHODS)} (the *_lsr ablations only when named)")
   parser.add_argument("--start", choices=("random", "fixed"), default="random")
   parser.add_argument("--max-steps", type=int, default=6000)
   parser.add_argument("--srt-max-steps", type=int, default=16000,
