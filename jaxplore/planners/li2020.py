@@ -133,7 +133,6 @@ DEFAULTS = {f.name: f.default for f in dataclasses.fields(Weights)}
 VISIBLE_BLOCK = {"per_robot": 2, "lockstep": 8}
 
 
-
 @dataclasses.dataclass(frozen=True)
 class Settings:
   """Static settings of ``li2020``.
