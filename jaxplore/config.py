@@ -420,6 +420,19 @@ PRESETS: dict[str, Preset] = {
 }
 
 
+# Settings that no longer exist, and what took their place (named in the error a user gets).
+RETIRED = {"sigma_d": "odom_noise_d", "sigma_phi": "odom_noise_phi"}
+
+
+def retired_hint(names) -> str:
+  """The start of an unknown-setting error for names that were removed: what replaced them."""
+  gone = sorted(set(map(str, names)) & set(RETIRED))
+  if not gone:
+    return ""
+  return ("; ".join(f"{name!r} was removed: Li et al.'s V_n is the odometry noise model now, "
+                    f"set {RETIRED[name]!r}" for name in gone) + ". ")
+
+
 def make_params(preset: str | None = None, *, res: float | None = None, planner: dict | None = None,
                 **overrides) -> Params:
   """Builds a validated :class:`Params` from a preset plus overrides.
@@ -434,7 +447,8 @@ def make_params(preset: str | None = None, *, res: float | None = None, planner:
     values.update(PRESETS[preset].params)
   unknown = set(overrides) - set(PARAM_FIELDS)
   if unknown:
-    raise ConfigError(f"unknown parameter(s) {sorted(unknown)}; valid: {', '.join(PARAM_FIELDS)}")
+    raise ConfigError(f"{retired_hint(unknown)}unknown parameter(s) {sorted(unknown)}; valid: "
+                      f"{', '.join(PARAM_FIELDS)}")
   values.update({k: v for k, v in overrides.items() if v is not None})
   if res is not None and "dt" not in overrides:
     step_cells = PRESETS[preset].step_cells if preset is not None else None

@@ -42,6 +42,7 @@ from jaxplore.config import (
   STRATEGIES,
   ConfigError,
   SimConfig,
+  retired_hint,
 )
 from jaxplore.settings import declared, setting
 
@@ -165,7 +166,7 @@ def _refuse_unknown_params(params: Mapping, planner) -> None:
   unknown = sorted(set(map(str, params)) - set(SIM_PARAMS))
   if not unknown:
     return
-  message = f"unknown parameter(s) {unknown}; valid: {', '.join(SIM_PARAMS)}"
+  message = f"{retired_hint(unknown)}unknown parameter(s) {unknown}; valid: {', '.join(SIM_PARAMS)}"
   from jaxplore.planners import get_planner
   try:
     spec = get_planner(planner)

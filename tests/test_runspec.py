@@ -37,6 +37,7 @@ def test_create_takes_none_as_the_default_and_json_round_trips():
     (dict(robots=0), "robots must be a positive integer"),
     (dict(params={"r_max": float("nan")}), "r_max.*finite"),
     (dict(params={"warp": 1.0}), "unknown parameter.*warp"),
+    (dict(params={"sigma_d": 1.0}), "'sigma_d' was removed: .* set 'odom_noise_d'"),
     (dict(robots=2, params={"r_max": (1.0, 2.0, 3.0)}), "r_max has 3 values for 2 robots"),
     (dict(plan_window=-8), "plan_window"),
     (dict(preset="hubble"), "preset must be one of li2020, .*, got 'hubble'"),
