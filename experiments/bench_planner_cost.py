@@ -36,11 +36,8 @@ def main(argv=None):
 
   import os
 
-  # The CLI's default devices: one host device per core (jaxplore.cli._set_devices).
-  flags = os.environ.get("XLA_FLAGS", "")
-  if "xla_force_host_platform_device_count" not in flags and (os.cpu_count() or 1) > 1:
-    os.environ["XLA_FLAGS"] = (f"{flags} --xla_force_host_platform_device_count="
-                               f"{os.cpu_count()}").strip()
+  from jaxplore.cli import set_host_devices
+  set_host_devices()  # the CLI's default devices, before JAX starts
   import jax
 
   import jaxplore

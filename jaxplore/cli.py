@@ -129,7 +129,9 @@ def _settings(args) -> int:
   return 0
 
 
-def _set_devices(n):
+def set_host_devices(n=None):
+  """Splits the host CPU into ``n`` JAX devices (default: one per core, the CLI's default devices)
+  unless ``XLA_FLAGS`` already says; call it before JAX starts."""
   n = n or os.cpu_count() or 1
   flags = os.environ.get("XLA_FLAGS", "")
   if "xla_force_host_platform_device_count" not in flags and n > 1:
@@ -198,7 +200,7 @@ def _run(args, extra) -> int:
     explicit = dict(world=args.world, planner=args.planner, robots=args.robots, seed=args.seed,
                     robot_seeds=robot_seeds, **_spec_flags(args, extra, [planner]))
     settings = merge_settings(from_file, explicit)
-    _set_devices(settings.get("devices"))  # before JAX starts
+    set_host_devices(settings.get("devices"))  # before JAX starts
     from jaxplore.runner import run
     out, devices = settings.pop("out"), settings.pop("devices")
     return run(out=out, devices=devices, progress=not args.no_progress, **settings)
@@ -233,7 +235,7 @@ def _sweep(args, extra) -> int:
   def compute():
     config = None if args.config is None else sweeps.load_config(args.config)  # read once: a pipe
     devices = args.devices if args.devices is not None else (config or {}).get("devices")
-    _set_devices(devices)  # before JAX starts
+    set_host_devices(devices)  # before JAX starts
     grid = None
     for item in args.grid or []:
       if "=" not in item:

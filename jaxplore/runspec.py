@@ -341,13 +341,12 @@ class RunSpec:
     if unknown:
       raise ConfigError(f"unknown setting(s) {unknown}; valid: {', '.join(FIELDS)}")
     settings = {k: v for k, v in settings.items() if v is not None}
+    from jaxplore.planners.base import planner_brings
     if "preset" not in settings:
-      from jaxplore.planners.base import planner_brings
       preset = planner_brings(settings.get("planner", cls.planner), "preset")
       if preset is not None:
         settings["preset"] = preset
     if "slam" not in settings and "slam" not in (settings.get("params") or {}):
-      from jaxplore.planners.base import planner_brings
       slam = planner_brings(settings.get("planner", cls.planner), "slam")
       if slam is not None:
         settings["slam"] = slam
