@@ -90,7 +90,7 @@ def main(argv=None):
                       help="comma separated worlds the --variants run on (default: every world)")
   parser.add_argument("--out", default=None,
                       help="parts folder; the table is written beside it as <out>.md "
-                      "(default: results/li2020_table1, or li2020_table1_pose_noise)")
+                      "(default: results/li2020_table1, suffixed _pose_noise and/or _<slam>)")
   args = parser.parse_args(argv)
   if args.quick:
     args.seeds, args.worlds, args.max_steps = 2, "lab,intel", args.max_steps or 150
@@ -106,7 +106,9 @@ def main(argv=None):
   from jaxplore.resolve import resolve
   from jaxplore.runspec import RunSpec
 
-  suffix = "_pose_noise" if args.pose_noise else ""
+  # One table per noise and SLAM model: a scan_matching table never overwrites the oracle's.
+  suffix = ("_pose_noise" if args.pose_noise else "") + (
+      "" if args.slam == "oracle" else f"_{args.slam}")
   out = Path(args.out or RESULTS / f"li2020_table1{suffix}")
   out.mkdir(parents=True, exist_ok=True)
   labels = tuple(p for p in args.planners.split(",") if p) + tuple(v for v in args.variants.split(",") if v)
@@ -126,8 +128,9 @@ def main(argv=None):
       # invocation with the same settings, so a long table can be built in several sittings.
       # R_e is part of the tag: parts from before it was derived by Eq 5-6 are not reused.
       name, weights = VARIANTS.get(planner, (planner, None))
-      r_e = resolve(RunSpec(world=spec, planner=name, robots=1, preset="li2020", res=res,
-                            planner_params=weights or {})).config.planner.settings.r_e
+      # (li2020's R_e for every planner's tag: the preset's lidar sets it, the planner does not.)
+      r_e = resolve(RunSpec(world=spec, planner="li2020", robots=1, preset="li2020",
+                            res=res)).config.planner.settings.r_e
       tag = (f"{world}_{planner}_s{args.seeds}_m{max_steps or 'auto'}_re{r_e:.2f}"
              + ("_pn" if args.pose_noise else "")
              + ("" if args.slam == "oracle" else f"_{args.slam}"))
@@ -224,7 +227,7 @@ def main(argv=None):
 
   parts_s = float(episodes.groupby(["world", "planner"]).wall_s.first().sum())
   header = (f"Li et al. 2020 Table 1 layout, {args.seeds} seeds per cell, preset li2020"
-            f"{', pose noise' if args.pose_noise else ''}, "
+            f"{', pose noise' if args.pose_noise else ''}, SLAM model {args.slam}, "
             f"command: python experiments/li2020_table1.py {' '.join(argv or sys.argv[1:])}\n"
             f"wall time of this invocation {time.perf_counter() - started:.0f} s; of the runs behind the "
             f"table (parts computed earlier included) {parts_s:.0f} s\n\n")
