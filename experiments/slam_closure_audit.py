@@ -6,7 +6,9 @@ beside the match's own standard deviations and the drift covariance that sized a
 search, read at the chunk before it closed), and the chain of odometry edges is checked for
 calibration: the normalised estimation error squared (NEES) of each edge (1 per component if its
 covariance is honest) and the heading drift over windows of ``--window`` edges, actual against
-what the edges' covariances claim when compounded as independent measurements.
+what the edges' covariances claim when compounded as independent measurements; and the drift
+since the last closure or link (``drift_cov``, which gates the closures) against the estimate's
+error relative to that keyframe's (``experiments/results/slam_drift_calibration.md``).
 
 A closure is *bad* here when its measured relative pose is off by more than ``--bad-m`` metres or
 ``--bad-deg`` degrees (the ``false`` column of the results is a different test: the truth outside
@@ -46,6 +48,18 @@ def _between(a, b):
                                              np.atleast_2d(b).astype(np.float32)))
 
 
+def _last_restart(graph):
+  """Per robot, the newer keyframe of its last loop edge the back end kept (0 before any): what
+  the drift counted from before the graph recorded it (``drift_from``)."""
+  loops, n_loops = np.asarray(graph.loops), np.asarray(graph.n_loops)
+  revoked = np.asarray(graph.loop_revoked)
+  out = np.zeros(loops.shape[0], np.int64)
+  for r in range(loops.shape[0]):
+    kept = [j for j in range(int(n_loops[r])) if not revoked[r, j]]
+    out[r] = loops[r, kept[-1], 1] if kept else 0
+  return out
+
+
 def simulate(world: str, robots: int, epochs: int, settings: dict):
   """The final pose graphs and, per chunk, each robot's loop count, drift covariance and pose
   error."""
@@ -67,9 +81,17 @@ def simulate(world: str, robots: int, epochs: int, settings: dict):
   for _ in range(min(epochs, config.n_epochs)):
     state, _ = advance(resolved.world, params, state)
     pose, est = np.asarray(state.pose), np.asarray(state.pose_est)
-    log.append(dict(n_loops=np.asarray(state.graph.n_loops).copy(),
-                    drift=np.asarray(state.graph.drift_cov).copy(),
-                    pose_error=np.hypot(*(pose[:, :2] - est[:, :2]).T)))
+    g = state.graph
+    since = (np.asarray(g.drift_from) if getattr(g, "drift_from", None) is not None
+             else _last_restart(g))
+    rows = np.arange(robots)
+    log.append(dict(n_loops=np.asarray(g.n_loops).copy(),
+                    drift=np.asarray(g.drift_cov).copy(),
+                    pose_error=np.hypot(*(pose[:, :2] - est[:, :2]).T),
+                    # What the drift is counted from: its keyframe's estimate and truth now.
+                    keyframes_since=np.asarray(g.n_nodes) - 1 - since,
+                    from_est=np.asarray(g.poses)[rows, since], from_true=np.asarray(g.truth)[rows, since],
+                    est=est.copy(), pose=pose.copy()))
     if bool(np.all(np.asarray(state.done))):
       break
   return jax.tree.map(np.asarray, state.graph), log
@@ -136,8 +158,39 @@ def audit(graph, log, bad_m: float, bad_deg: float, window: int):
   return closures, chains
 
 
+def drift_calibration(log, min_keyframes: int):
+  """Per robot, the drift covariance (which sizes and gates the loop search) against the error
+  it stands for, at every chunk with at least ``min_keyframes`` keyframes since the last closure
+  or link: the estimate's error relative to that keyframe's, in the world frame (the relative
+  pose of the two estimates less the truth's, turned by the older estimate's heading)."""
+  rows = []
+  for r in range(log[0]["est"].shape[0]):
+    nees_xy, nees_theta, err_deg, sd_deg = [], [], [], []
+    for row in log:
+      if row["keyframes_since"][r] < min_keyframes:
+        continue
+      a_est, a_true = row["from_est"][r], row["from_true"][r]
+      rel = _between(a_est, row["est"][r])[0] - _between(a_true, row["pose"][r])[0]
+      rel[2] = (rel[2] + np.pi) % (2 * np.pi) - np.pi
+      c, s = np.cos(a_est[2]), np.sin(a_est[2])
+      xy = np.array([[c, -s], [s, c]]) @ rel[:2]
+      cov = row["drift"][r].astype(np.float64)
+      nees_xy.append(xy @ np.linalg.solve(cov[:2, :2], xy))
+      nees_theta.append(rel[2] ** 2 / cov[2, 2])
+      err_deg.append(np.degrees(abs(rel[2])))
+      sd_deg.append(np.degrees(np.sqrt(cov[2, 2])))
+    if nees_xy:
+      rows.append(dict(robot=r, chunks=len(nees_xy), nees_xy=float(np.mean(nees_xy)),
+                       nees_theta=float(np.mean(nees_theta)),
+                       outside=float(np.mean(np.array(nees_theta) > 9.0)),
+                       err_deg=float(np.sqrt(np.mean(np.square(err_deg)))),
+                       sd_deg=float(np.sqrt(np.mean(np.square(sd_deg))))))
+  return rows
+
+
 def report(closures, chains, log, header: str, bad_m: float, bad_deg: float) -> str:
   pose_error = np.stack([row["pose_error"] for row in log])
+  calibration = drift_calibration(log, 20)
   lines = [header, "",
            f"Pose error over every chunk of every robot: mean {pose_error.mean():.3f} m, "
            f"95th percentile {np.percentile(pose_error, 95):.2f} m, max {pose_error.max():.2f} m; "
@@ -148,6 +201,16 @@ def report(closures, chains, log, header: str, bad_m: float, bad_deg: float) -> 
   for c in chains:
     lines.append(f"| {c['robot']} | {c['edges']} | {c['nees_xy']:.2f} | {c['nees_theta']:.2f} | "
                  f"{c['drift_actual_deg']:.2f} | {c['drift_claimed_deg']:.2f} |")
+  lines += ["", "## The drift since the last closure or link, against its error", "",
+            "At every chunk with at least 20 keyframes since the last closure or link: the "
+            "estimate's error relative to that keyframe's against `drift_cov`, which sizes and "
+            "gates the loop search (NEES 2 in x-y, 1 in θ if honest; a tenth of the chunks "
+            "outside 3σ in θ would be many).", "",
+            "| robot | chunks | NEES x-y (2) | NEES θ (1) | θ outside 3σ | heading error rms ° | "
+            "drift sd rms ° |", "|---:|---:|---:|---:|---:|---:|---:|"]
+  for c in calibration:
+    lines.append(f"| {c['robot']} | {c['chunks']} | {c['nees_xy']:.2f} | {c['nees_theta']:.2f} | "
+                 f"{c['outside']:.1%} | {c['err_deg']:.2f} | {c['sd_deg']:.2f} |")
   lines += ["", "## Which loop edges the back end's χ² test would catch", "",
             "Each loop edge's `rᵀ Ω r` at the optimum of its robot's final graph (revoked edges "
             "left out; for them, the value at the optimisation that revoked them), against "

@@ -334,12 +334,16 @@ def _slam_front(config, world, params, graph, belief, scan, offsets, pose, pose_
   previous = graph.poses[jnp.maximum(graph.n_nodes - 1, 0)]
   edge_cov = jnp.where(accepted, fused_cov, acc_cov + floor)
   info = slam_model.information(slam_model.in_frame(edge_cov, previous[2]))
-  # The estimate's uncertainty since the last closure (it sizes and gates the loop search):
-  # each keyframe's edge covariance compounded along the chain (Li Eq 17, both in the world
-  # frame), small while matches hold the estimate, growing where they cannot.
+  # The estimate's uncertainty since the last closure (it sizes and gates the loop search).
+  drift_cov = jnp.where(new, slam_model.drift(params, graph, pose_est, acc_cov + floor,
+                                              match.cov, accepted), graph.drift_cov)
+  keyframe_drift = graph.keyframe_drift.at[jnp.where(new, graph.n_nodes, n_cap)].set(
+      drift_cov, mode="drop")
+  # The loop search's window: the edges compounded as if independent (Li Eq 17), a bound.
   j1, _ = motion.compounding_jacobians(previous, pose_est)
-  drift_cov = jnp.where(new, j1 @ graph.drift_cov @ j1.T + edge_cov, graph.drift_cov)
+  search_cov = jnp.where(new, j1 @ graph.search_cov @ j1.T + edge_cov, graph.search_cov)
   graph = graph.replace(acc_pose=acc_pose, acc_cov=acc_cov, drift_cov=drift_cov,
+                        search_cov=search_cov, keyframe_drift=keyframe_drift,
                         matches_rejected=(graph.matches_rejected +
                                           (new & ~accepted).astype(jnp.int32)))
   graph = slam_model.add_keyframe(graph, new, pose_est, pose, info)
@@ -375,8 +379,8 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
   # A near link anchors the estimate to the older keyframes: the drift since, which sizes the
   # next loop search, starts again from the link's own uncertainty.
   linked = added & link
-  graph = graph.replace(drift_cov=jnp.where(linked, closure.cov, graph.drift_cov),
-                        linked_at=jnp.where(linked, pose_est[:2], graph.linked_at))
+  graph = slam_model.restart_drift(graph, linked, i, closure.cov)
+  graph = graph.replace(linked_at=jnp.where(linked, pose_est[:2], graph.linked_at))
 
   def back_end(graph, logodds):
     graph = slam_model.optimise(config, params, graph)
@@ -393,8 +397,8 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
   pose_est = jnp.where(closed, graph.poses[i], pose_est)
   # A closure the back end revoked (slam_model.optimise) closed nothing: the drift stands.
   kept = closed & ~graph.loop_revoked[jnp.minimum(before, graph.loops.shape[0] - 1)]
-  graph = graph.replace(drift_cov=jnp.where(kept, 0.0, graph.drift_cov),
-                        closed_at=jnp.where(kept, pose_est[:2], graph.closed_at))
+  graph = slam_model.restart_drift(graph, kept, i, jnp.zeros((3, 3), jnp.float32))
+  graph = graph.replace(closed_at=jnp.where(kept, pose_est[:2], graph.closed_at))
   return logodds, graph, pose_est, rebuilt
 
 

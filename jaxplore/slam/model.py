@@ -217,6 +217,54 @@ def register(config, params, logodds, origin, points, valid, prior, odometry_cov
 # --- the graph -----------------------------------------------------------------------------------
 
 
+def drift(params, graph: PoseGraph, pose, odometry_cov, match_cov, matched):
+  """The uncertainty of a new keyframe at ``pose`` (world frame) since the last loop closure or
+  near link. ``odometry_cov``: the odometry's since the previous keyframe; ``match_cov``: the
+  scan match's, when ``matched`` (both world frame).
+
+  Dead-reckoned, it is the previous keyframe's compounded with the odometry's (Li Eq 17).
+  Matched, the scan was placed against the map the recent keyframes drew, not against the
+  previous keyframe alone, and the errors of successive matches do not add up as independent
+  edges' would: on willow and intel the heading drift over 150 edges was 0.6-2.2° where the
+  edges compounded as independent claimed 6° (``experiments/results/slam_closure_audit.md``).
+  The match is then a measurement of the pose relative to the oldest keyframe of the front end's
+  local chain (the keyframes since the last closure or link that are younger than any loop
+  candidate, fewer than ``loop_min_age`` keyframes back; older ones are the loop search's): that
+  keyframe's drift compounded with the match's covariance. It is fused with the dead-reckoned
+  prediction (a Kalman update, :func:`jaxplore.motion.relocalise`): where the match holds the
+  pose (a corner) the drift stays the anchor's, where it cannot (along a corridor, the match's
+  variance large) it grows with the odometry, keyframe by keyframe.
+  """
+  assert graph.keyframe_drift is not None and graph.drift_from is not None  # scan_matching's
+  assert graph.drift_cov is not None
+  i = graph.n_nodes
+  last = jnp.maximum(i - 1, 0)
+  oldest_local = jnp.floor(i.astype(jnp.float32) - params.loop_min_age).astype(jnp.int32) + 1
+  anchor = jnp.clip(jnp.maximum(oldest_local, graph.drift_from), 0, last)
+
+  def compounded(k, cov, increment_cov):
+    j1, _ = motion.compounding_jacobians(graph.poses[k], pose)
+    return j1 @ cov @ j1.T + increment_cov
+
+  predicted = compounded(last, graph.drift_cov, odometry_cov)
+  anchored = compounded(anchor, graph.keyframe_drift[anchor], match_cov)
+  _, fused = motion.relocalise(pose, predicted, pose, anchored)
+  return jnp.where(matched, fused, predicted)
+
+
+def restart_drift(graph: PoseGraph, where, i, cov) -> PoseGraph:
+  """Where ``where``: the drift counted from keyframe ``i`` again, with ``cov`` its uncertainty
+  (0 after a loop closure, a near link's own covariance after a link)."""
+  assert graph.keyframe_drift is not None and graph.drift_from is not None  # scan_matching's
+  assert graph.drift_cov is not None and graph.search_cov is not None
+  n_cap = graph.poses.shape[0]
+  return graph.replace(
+      drift_cov=jnp.where(where, cov, graph.drift_cov),
+      search_cov=jnp.where(where, cov, graph.search_cov),
+      drift_from=jnp.where(where, i, graph.drift_from),
+      keyframe_drift=graph.keyframe_drift.at[jnp.where(where, i, n_cap)].set(cov, mode="drop"))
+
+
 def add_keyframe(graph: PoseGraph, new, pose, truth, info) -> PoseGraph:
   """Keyframe ``n_nodes`` at the estimate ``pose`` (and ``truth``), joined to the previous
   keyframe by an edge of information ``info`` (nothing when ``new`` is False). Its scan is the
@@ -324,12 +372,14 @@ def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points,
   standard deviations of the drift since the closure, at most ``slam_search_m``) and the match
   is accepted at a response of ``link_min_response``."""
   assert graph.truth is not None and graph.drift_cov is not None  # the scan_matching graph's
+  assert graph.search_cov is not None
   sz = sizes(config)
   occupied, corner = local_map(graph, ranges, candidates, ok, offsets, config.res, pose[:2],
                                sz.loop_crop, origin)
   field = scan_matching.smear(occupied, config.res, config.loop_smear, sz.loop_smear_cells)
-  loop_xy, loop_angle = _half_extents(graph.drift_cov, params, config.loop_search_m, config.res)
-  link_xy, link_angle = _half_extents(graph.drift_cov, params, config.slam_search_m, config.res)
+  # The window from the bound (search_cov), the gate below from the drift.
+  loop_xy, loop_angle = _half_extents(graph.search_cov, params, config.loop_search_m, config.res)
+  link_xy, link_angle = _half_extents(graph.search_cov, params, config.slam_search_m, config.res)
   half_xy = jnp.where(link, link_xy, loop_xy)
   half_angle = jnp.where(link, link_angle, loop_angle)
   # Karto matches a loop closure without the odometry penalty (TryCloseLoop: doPenalize false),

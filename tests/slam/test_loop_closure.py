@@ -93,9 +93,10 @@ def close(setup, occ, error_x, link=False, **params_changes):
   ranges = np.zeros((32, N_BEAMS), np.float16)
   for k, p in enumerate(old + [truth]):
     ranges[k] = numpy_scan(occ, p, offsets)
+  drift = jnp.diag(jnp.array([0.3 ** 2, 0.3 ** 2, math.radians(3.0) ** 2], jnp.float32))
   graph = posegraph.init(poses[0], 32, 4, N_BEAMS).replace(
       poses=jnp.asarray(poses), truth=jnp.asarray(truths), n_nodes=jnp.int32(n),
-      drift_cov=jnp.diag(jnp.array([0.3 ** 2, 0.3 ** 2, math.radians(3.0) ** 2], jnp.float32)))
+      drift_cov=drift, search_cov=drift)
   result = closure(params, graph, jnp.asarray(ranges), jnp.asarray(estimate, jnp.float32),
                    jnp.asarray(truth, jnp.float32), jnp.asarray(ranges[n - 1]),
                    jnp.bool_(link))
