@@ -32,11 +32,15 @@
 #                                                     # changes undone, visible_by_depth (and
 #                                                     # visible, the region it is compared with)
 #   bash experiments/gpu_benchmarks.sh stages OUT     # ~4 min: stage times, lockstep
+#   bash experiments/gpu_benchmarks.sh slam OUT       # ~6 min (never run yet): scan_matching
+#                                                     # against oracle, nearest frontier on
+#                                                     # office, 1,024 and 4,096 robots (the SLAM
+#                                                     # issue's GPU row; 0.32-0.35x on this CPU)
 #
 # OUT defaults to experiments/results. Each part is a few command lines below; run them by hand
 # with other batch sizes as the budget allows.
 set -euo pipefail
-part=${1:?"which part: table, ladder, variants, li2020, lab or stages"}
+part=${1:?"which part: table, ladder, variants, li2020, lab, stages or slam"}
 out=${2:-experiments/results}
 mkdir -p "$out"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
@@ -73,6 +77,9 @@ case "$part" in
     python experiments/bench_accelerator.py --settings lab --strategies lockstep \
       --robots 64,256,1024,4096 --steps 32 --chunk-steps 16 --budget-s 60 \
       --out "$out/bench_lab_gpu.md" ;;
+  slam)
+    python experiments/bench_slam.py --worlds office --robots 1024,4096 --steps 128 \
+      --out "$out/bench_slam_gpu.md" ;;
   *)
-    echo "unknown part $part: table, ladder, variants, li2020, lab or stages" >&2; exit 2 ;;
+    echo "unknown part $part: table, ladder, variants, li2020, lab, stages or slam" >&2; exit 2 ;;
 esac

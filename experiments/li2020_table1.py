@@ -69,6 +69,9 @@ COLUMNS = [("entropy_reduction", "entropy reduction (nats)"), ("distance_m", "di
            # Li's "Entropy" column is 16 x coverage on every row: their E_r is coverage per metre.
            ("coverage_per_m", "coverage per metre (m²/m)"),
            ("coverage", "coverage (fraction)"), ("time_s", "time (s)")]
+# With the scan_matching SLAM model: how well the robot knew where it was (NaN on the oracle).
+SLAM_COLUMNS = [("ate_m", "ATE (m)"), ("loop_closures", "loop closures"),
+                ("false_closures", "false closures")]
 
 
 def main(argv=None):
@@ -171,10 +174,11 @@ def main(argv=None):
   episodes.to_parquet(out / "episodes.parquet", index=False)
   curves.to_parquet(out / "curves.parquet", index=False)
 
-  lines = ["| world | planner | " + " | ".join(label for _, label in COLUMNS) + " | complete | step budget |",
-           "|---|---|" + "---|" * (len(COLUMNS) + 2)]
+  columns = COLUMNS + (SLAM_COLUMNS if args.slam != "oracle" else [])
+  lines = ["| world | planner | " + " | ".join(label for _, label in columns) + " | complete | step budget |",
+           "|---|---|" + "---|" * (len(columns) + 2)]
   for (world, planner), g in episodes.groupby(["world", "planner"], sort=False):
-    cells = [f"{g[c].mean():.4g} ± {g[c].std():.3g}" for c, _ in COLUMNS]
+    cells = [f"{g[c].mean():.4g} ± {g[c].std():.3g}" for c, _ in columns]
     still = int((g.distance_m <= 0).sum())
     lines.append(f"| {world} | {planner} | " + " | ".join(cells) +
                  f" | {int((g.reason == 'complete').sum())}/{len(g)}"
