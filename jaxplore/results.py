@@ -96,6 +96,12 @@ def summary_table(episodes: pd.DataFrame) -> str:
       v = episodes[col].astype(float)
       lines.append(f"  {col:<18} {v.mean():12.4g} ± {v.std():<10.4g} {unit}  "
                    f"(min {v.min():.4g}, max {v.max():.4g})")
+  dropped = episodes["loops_dropped"] if "loops_dropped" in episodes else pd.Series(dtype=float)
+  if (dropped > 0).any():
+    lines.append(f"warning: the pose graph's loop list filled up for {int((dropped > 0).sum())} of "
+                 f"{len(dropped)} robots: {dropped.mean():.4g} loop closures dropped a robot on "
+                 f"average (max {int(dropped.max())}), never added to the graph (a larger "
+                 f"--graph-loops keeps them)")
   return "\n".join(lines)
 
 

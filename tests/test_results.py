@@ -168,3 +168,13 @@ def test_a_swept_static_setting_makes_a_group_per_value(probe):
   with pytest.raises(ConfigError, match="plan_increment fixes the compiled program"):
     schedule.resolve_group(spec, dataclasses.replace(
         made.groups[0], rows=made.groups[0].rows + made.groups[1].rows), None, grids)
+
+
+def test_the_summary_warns_when_loop_closures_were_dropped():
+  episodes = pd.DataFrame({"reason": ["complete", "timeout", "complete"], "time_s": [1.0, 2.0, 3.0],
+                           "loops_dropped": [0, 12, 30]})
+  text = results.summary_table(episodes)
+  assert "loop list filled up for 2 of 3 robots" in text and "max 30" in text
+  assert "--graph-loops" in text
+  assert "warning" not in results.summary_table(episodes.assign(loops_dropped=0))
+  assert "warning" not in results.summary_table(episodes.drop(columns="loops_dropped"))
