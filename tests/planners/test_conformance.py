@@ -121,6 +121,16 @@ def batch_plans(planner):
   return batched, jax.tree.map(np.asarray, jax.jit(jax.vmap(fn))(batched, *inputs(BATCH)))
 
 
+# A planner family's members run the same code with other settings: the suite keeps the fullest
+# of each (ereg of reg.py, frt of godoy2023.py's, ahmed of ahmed.py's) under lockstep and eagerly,
+# and leaves the others, ~5 s of compile or of eager dispatch each, to `pytest -m slow` (their
+# jitted plans are checked below all the same).
+FAMILY_REPEATS = ("reg", "srg", "srt", "ig", "ags")
+ONE_OF_EACH_FAMILY = [pytest.param(name, marks=pytest.mark.slow) if name in FAMILY_REPEATS
+                      else name for name in planner_names()]
+
+
+@pytest.mark.parametrize("planner", ONE_OF_EACH_FAMILY, indirect=True)
 def test_one_robot_eager_and_jitted_agree_and_conform(planner):
   spec, ctx, fn, params, jitted_fn = planner
   eager = jax.tree.map(np.asarray, fn(params, *inputs()))
@@ -142,15 +152,7 @@ def test_batch_vmapped_conforms_and_equals_one_at_a_time(planner, batch_plans):
     chex.assert_trees_all_close((plan_b, memory_b), alone, atol=1e-4, rtol=1e-4)
 
 
-# Under lockstep a planner family's members run the same code with other settings: the suite
-# keeps the fullest of each (ereg of reg.py, frt of godoy2023.py's, ahmed of ahmed.py's) and
-# leaves the others, ~5 s of compile each, to `pytest -m slow`.
-LOCKSTEP_FAMILY_REPEATS = ("reg", "srg", "srt", "ig", "ags")
-
-
-@pytest.mark.parametrize("planner", [
-    pytest.param(name, marks=pytest.mark.slow) if name in LOCKSTEP_FAMILY_REPEATS else name
-    for name in planner_names()], indirect=True)
+@pytest.mark.parametrize("planner", ONE_OF_EACH_FAMILY, indirect=True)
 def test_a_batch_plans_the_same_under_both_strategies(planner, batch_plans):
   """The accelerator's strategy forced on a CPU: ``lockstep`` (shortest paths by relaxation, the
   planner's lockstep paths) plans a vmapped batch bit for bit as ``per_robot`` does."""
