@@ -199,6 +199,25 @@ def keyframe_bound(max_steps: int, v_max, w_max, dt, kf_dist, kf_rot) -> int:
   return 1 + min(int(max_steps), math.ceil(max_steps * per_step * (1 + 1e-4)))
 
 
+def loop_bound(max_steps: int, params, keyframes: int) -> int:
+  """Loop slots for a ``scan_matching`` run of ``max_steps`` steps (host side): its loop
+  closures and near links as the model spaces them (:mod:`jaxplore.slam.model`). A robot looks
+  for the next closure only once it is ``loop_radius`` from where it closed the last, and makes
+  at most one near link per ``link_spacing`` driven (per keyframe at 0, none at
+  ``link_radius`` 0), so a run that drives ``d`` metres makes about ``d / loop_radius`` closures
+  and ``d / link_spacing`` links; 10 % more for the closures the back end revokes (they keep
+  their slots). A sizing, not a proof: a closure found with the list full is counted
+  (``loops_dropped``) and the run's summary says so. Array arguments (a sweep) give the largest
+  over their values."""
+  distance = max_steps * float(np.max(np.asarray(params.v_max, np.float64)
+                                      * np.asarray(params.dt, np.float64)))
+  closures = distance / float(np.min(params.loop_radius))
+  spacing = float(np.min(params.link_spacing))
+  links = (0.0 if float(np.max(params.link_radius)) <= 0
+           else keyframes if spacing <= 0 else distance / spacing)
+  return max(8, math.ceil(1.1 * (closures + links)))
+
+
 def check_capacity(node_capacity: int, max_steps: int, params) -> None:
   """Raises :class:`ConfigError` when a run could create more keyframes than the graph holds."""
   bound = keyframe_bound(max_steps, params.v_max, params.w_max, params.dt, params.kf_dist,

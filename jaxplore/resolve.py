@@ -258,6 +258,9 @@ def resolve(spec: RunSpec) -> Resolved:
                                                         params.dt, params.kf_dist, params.kf_rot)
     if spec.graph_loops is not None:
       overrides["graph_loops"] = spec.graph_loops
+    elif slam == "scan_matching":  # closures and links spaced by distance driven: sized by it
+      overrides["graph_loops"] = posegraph.loop_bound(max_steps, params,
+                                                      overrides["graph_nodes"])
   config = config_for(grid.shape, grid.res, params, preset=spec.preset, max_steps=max_steps,
                       planner_given=given, **overrides)
   validate_params(params, config)

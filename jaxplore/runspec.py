@@ -263,7 +263,9 @@ class RunSpec:
                                     "slam = scan_matching")
   graph_loops: int | None = setting(None, "loop-closure capacity of the pose graph",
                                     owner="run", static=True, ge=1, integer=True,
-                                    unset=str(SimConfig.graph_loops))
+                                    unset=f"with slam = scan_matching: the closures and "
+                                    f"near links the run's distance allows "
+                                    f"(posegraph.loop_bound); else {SimConfig.graph_loops}")
   params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   planner_params: Mapping[str, Any] = dataclasses.field(default_factory=lambda: _EMPTY)
   rate_interval: float = setting(1.0, "metres per interval of Std(E_r)", owner="run", unit="m",

@@ -289,3 +289,21 @@ def test_capacity_refusal_names_the_numbers():
   with pytest.raises(ConfigError, match=message):
     posegraph.check_capacity(512, 1000, params)
   posegraph.check_capacity(1001, 1000, params)
+
+
+def test_a_scan_matching_run_has_loop_slots_for_the_distance_it_can_drive():
+  from jaxplore.resolve import resolve
+  from jaxplore.runspec import RunSpec
+  params = make_params(v_max=0.25, dt=0.4, loop_radius=4.0, link_spacing=1.0)
+  # 1,000 steps of at most 0.1 m: 100 m, a closure per 4 m and a link per metre, 10 % more.
+  assert posegraph.loop_bound(1000, params, keyframes=400) == math.ceil(1.1 * (25 + 100))
+  assert posegraph.loop_bound(1000, params.replace(link_radius=0.0), 400) == math.ceil(1.1 * 25)
+  # A sweep: the largest over its values; a link spacing of 0 links at every keyframe.
+  sweep = params.replace(loop_radius=np.array([2.0, 4.0]), link_spacing=np.array([0.0, 1.0]))
+  assert posegraph.loop_bound(1000, sweep, keyframes=400) == math.ceil(1.1 * (50 + 400))
+  run = lambda **kw: resolve(RunSpec.create(world="lab", planner="nearest_frontier", robots=1,
+                                            max_steps=500, **kw)).config
+  sized = run(slam="scan_matching")
+  assert sized.graph_loops == posegraph.loop_bound(500, make_params(), sized.graph_nodes)
+  assert run(slam="scan_matching", graph_loops=64).graph_loops == 64
+  assert run(slam="oracle", pose_graph=True).graph_loops == 256  # the oracle's proximity graph
