@@ -99,6 +99,9 @@ class Watchdog:
     grace_s: after Ctrl-C, how long the call in flight is still waited for before it is dropped
       (the calls finished before it are kept).
     poll_s: how often the host looks.
+    suspended_s: a look that comes this much later than asked finds a process that was
+      suspended (Ctrl-Z, SIGSTOP, a machine put to sleep): the time it lay still is neither idle
+      nor running, and both clocks start again from there.
   """
 
   idle_s: float = 60.0
@@ -107,6 +110,7 @@ class Watchdog:
   min_s: float = 300.0
   grace_s: float = 5.0
   poll_s: float = 0.05
+  suspended_s: float = 10.0
 
 
 def call_watched(fn, *args, stage: str, watchdog: Watchdog, slowest_s: float | None = None):
@@ -142,10 +146,16 @@ def call_watched(fn, *args, stage: str, watchdog: Watchdog, slowest_s: float | N
   interrupted_at, poll = None, 1e-4
   thread.start()
   try:
+    looked = start
     while not finished():
       time.sleep(poll)
       poll = min(2 * poll, watchdog.poll_s)  # a short call is not held up by the polling
       now = time.monotonic()
+      if now - looked > poll + watchdog.suspended_s:  # the process lay still: not a stall
+        start += now - looked
+        last_busy = sample_t = now
+        sample_cpu = time.process_time()
+      looked = now
       if now - sample_t >= 1.0:  # CPU use over the last second or so
         if time.process_time() - sample_cpu > watchdog.idle_share * (now - sample_t):
           last_busy = now

@@ -171,3 +171,39 @@ def test_a_chunk_longer_than_the_budget_is_cut_to_it():
   assert driver.chunk_epochs_for(config, 100000) == 25 == config.n_epochs
   assert driver.chunk_epochs_for(config, 3) == 3
   assert driver.chunk_epochs_for(config, None) == driver.default_chunk_epochs(config)
+
+
+SUSPENDED = """
+import sys, time
+from jaxplore import driver
+
+def busy():  # a call that computes (keeps a core busy) for 2 s of the clock
+  t0 = time.monotonic()
+  while time.monotonic() - t0 < 2.0:
+    sum(range(1000))
+  return "done"
+
+print("ready", flush=True)
+out = driver.call_watched(busy, stage="chunk 1", watchdog=driver.Watchdog(idle_s=1.0,
+                                                                          suspended_s=0.5))
+print(out, flush=True)
+"""
+
+
+def test_a_process_suspended_and_resumed_is_not_judged_deadlocked():
+  """Ctrl-Z then ``fg`` (here SIGSTOP, 3 s, SIGCONT) in the middle of a call: the process used
+  no CPU while it lay still, which the watchdog must not take for a wedged program."""
+  import subprocess
+  import sys
+
+  from conftest import REPO, subprocess_env
+  proc = subprocess.Popen([sys.executable, "-c", SUSPENDED], cwd=REPO, env=subprocess_env(),
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+  assert proc.stdout.readline().strip() == "ready"
+  time.sleep(0.5)
+  proc.send_signal(signal.SIGSTOP)
+  time.sleep(3.0)
+  proc.send_signal(signal.SIGCONT)
+  out, err = proc.communicate(timeout=60)
+  assert proc.returncode == 0, err[-2000:]
+  assert out.strip() == "done"
