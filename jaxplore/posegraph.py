@@ -84,7 +84,7 @@ class PoseGraph:
     loop_chi2: f32[M] each loop edge's ``rᵀ Ω r`` at the last optimisation (0 before it).
     ranges: f16[N, B] each keyframe's scan (cells; a beam with no hit holds ``-range``).
     drift_cov: f32[3, 3] the estimate's uncertainty since the last loop closure or near link
-      (sizes and gates the loop search; :func:`jaxplore.slam.model.drift`).
+      (it gates the closures; :func:`jaxplore.slam.model.drift`).
     search_cov: f32[3, 3] the keyframes' edge covariances compounded along the chain since the
       same closure or link as if independent: a bound of the drift that sizes the loop search
       (a window sized by ``drift_cov`` truncated the matches' score surfaces, and their

@@ -334,7 +334,7 @@ def _slam_front(config, world, params, graph, belief, scan, offsets, pose, pose_
   previous = graph.poses[jnp.maximum(graph.n_nodes - 1, 0)]
   edge_cov = jnp.where(accepted, fused_cov, acc_cov + floor)
   info = slam_model.information(slam_model.in_frame(edge_cov, previous[2]))
-  # The estimate's uncertainty since the last closure (it sizes and gates the loop search).
+  # The estimate's uncertainty since the last closure (it gates the loop closures).
   drift_cov = jnp.where(new, slam_model.drift(params, graph, pose_est, acc_cov + floor,
                                               match.cov, accepted), graph.drift_cov)
   keyframe_drift = graph.keyframe_drift.at[jnp.where(new, graph.n_nodes, n_cap)].set(
@@ -376,8 +376,8 @@ def _slam_back(config, world, params, graph, ranges, logodds, robot, offsets, po
                         + (tries & ~closure.found).astype(jnp.int32))
   added = graph.n_loops > before
   closed = added & ~link
-  # A near link anchors the estimate to the older keyframes: the drift since, which sizes the
-  # next loop search, starts again from the link's own uncertainty.
+  # A near link anchors the estimate to the older keyframes: the drift since (and the bound that
+  # sizes the next loop search) starts again from the link's own uncertainty.
   linked = added & link
   graph = slam_model.restart_drift(graph, linked, i, closure.cov)
   graph = graph.replace(linked_at=jnp.where(linked, pose_est[:2], graph.linked_at))

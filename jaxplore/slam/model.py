@@ -20,8 +20,9 @@ new keyframe (Karto's ``minimum_travel_distance`` / ``minimum_travel_heading``):
    the odometry covariance accumulated since the last closure. A closure is accepted at a
    response of at least ``loop_min_response`` and a positional variance of at most
    ``loop_max_variance`` (Karto's thresholds) and within ``loop_gate`` (Mahalanobis distance²)
-   of the estimate; it is *false* when the truth's relative pose lies outside its own 99 %
-   bound (counted, never corrected: a real SLAM cannot tell).
+   of the estimate, measured against the drift since the last closure (:func:`drift`); it is
+   *false* when the truth's relative pose lies outside its own 99 % bound (counted, never
+   corrected: a real SLAM cannot tell).
 4. **Back end** on a closure: SE(2) pose-graph optimisation of every keyframe
    (:func:`jaxplore.slam.optimiser.optimise`), the estimate set to the current keyframe's
    optimised pose, and the belief rebuilt from the keyframes' stored scans at the optimised poses
