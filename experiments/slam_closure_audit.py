@@ -7,8 +7,9 @@ search, read at the chunk before it closed), and the chain of odometry edges is 
 calibration: the normalised estimation error squared (NEES) of each edge (1 per component if its
 covariance is honest) and the heading drift over windows of ``--window`` edges, actual against
 what the edges' covariances claim when compounded as independent measurements; and the drift
-since the last closure or link (``drift_cov``, which gates the closures) against the estimate's
-error relative to that keyframe's (``experiments/results/slam_drift_calibration.md``).
+since the last closure or link (the newest keyframe's ``keyframe_drift``, which gates the
+closures) against the estimate's error relative to that keyframe's
+(``experiments/results/slam_drift_calibration.md``).
 
 A closure is *bad* here when its measured relative pose is off by more than ``--bad-m`` metres or
 ``--bad-deg`` degrees (the ``false`` column of the results is a different test: the truth outside
@@ -86,11 +87,12 @@ def simulate(world: str, robots: int, epochs: int, settings: dict):
              else _last_restart(g))
     rows = np.arange(robots)
     log.append(dict(n_loops=np.asarray(g.n_loops).copy(),
-                    drift=np.asarray(g.drift_cov).copy(),
+                    drift=np.asarray(g.keyframe_drift)[rows, np.asarray(g.n_nodes) - 1].copy(),
                     pose_error=np.hypot(*(pose[:, :2] - est[:, :2]).T),
                     # What the drift is counted from: its keyframe's estimate and truth now.
                     keyframes_since=np.asarray(g.n_nodes) - 1 - since,
-                    from_est=np.asarray(g.poses)[rows, since], from_true=np.asarray(g.truth)[rows, since],
+                    from_est=np.asarray(g.poses)[rows, since],
+                    from_true=np.asarray(g.truth)[rows, since],
                     est=est.copy(), pose=pose.copy()))
     if bool(np.all(np.asarray(state.done))):
       break
@@ -203,9 +205,9 @@ def report(closures, chains, log, header: str, bad_m: float, bad_deg: float) -> 
                  f"{c['drift_actual_deg']:.2f} | {c['drift_claimed_deg']:.2f} |")
   lines += ["", "## The drift since the last closure or link, against its error", "",
             "At every chunk with at least 20 keyframes since the last closure or link: the "
-            "estimate's error relative to that keyframe's against `drift_cov`, which sizes and "
-            "gates the loop search (NEES 2 in x-y, 1 in θ if honest; a tenth of the chunks "
-            "outside 3σ in θ would be many).", "",
+            "estimate's error relative to that keyframe's against the newest keyframe's drift "
+            "(`keyframe_drift`), which gates the loop closures (NEES 2 in x-y, 1 in θ if honest; a "
+            "tenth of the chunks outside 3σ in θ would be many).", "",
             "| robot | chunks | NEES x-y (2) | NEES θ (1) | θ outside 3σ | heading error rms ° | "
             "drift sd rms ° |", "|---:|---:|---:|---:|---:|---:|---:|"]
   for c in calibration:

@@ -83,13 +83,13 @@ class PoseGraph:
       weight 0) but no longer constrains the poses.
     loop_chi2: f32[M] each loop edge's ``rᵀ Ω r`` at the last optimisation (0 before it).
     ranges: f16[N, B] each keyframe's scan (cells; a beam with no hit holds ``-range``).
-    drift_cov: f32[3, 3] the estimate's uncertainty since the last loop closure or near link
-      (it gates the closures; :func:`jaxplore.slam.model.drift`).
     search_cov: f32[3, 3] the keyframes' edge covariances compounded along the chain since the
       same closure or link as if independent: a bound of the drift that sizes the loop search
-      (a window sized by ``drift_cov`` truncated the matches' score surfaces, and their
+      (a window sized by the drift truncated the matches' score surfaces, and their
       covariances came out overconfident).
-    keyframe_drift: f32[N, 3, 3] ``drift_cov`` at each keyframe when it was added.
+    keyframe_drift: f32[N, 3, 3] the estimate's uncertainty since the last loop closure or near
+      link at each keyframe when it was added (:func:`jaxplore.slam.model.drift`); the newest
+      keyframe's gates the closures (:func:`jaxplore.slam.model.current_drift`).
     drift_from: i32 the keyframe of the last loop closure or near link (0 before the first):
       the drift is counted from it.
     closed_at: f32[2] where (estimated x, y) the last loop closed; NaN before the first.
@@ -117,7 +117,6 @@ class PoseGraph:
   loop_revoked: chex.Array | None = None
   loop_chi2: chex.Array | None = None
   ranges: chex.Array | None = None
-  drift_cov: chex.Array | None = None
   search_cov: chex.Array | None = None
   keyframe_drift: chex.Array | None = None
   drift_from: chex.Array | None = None
@@ -148,7 +147,7 @@ def init(pose, node_capacity: int, loop_capacity: int, beams: int = 0) -> PoseGr
         loop_false=jnp.zeros((m,), bool), loop_link=jnp.zeros((m,), bool),
         loop_revoked=jnp.zeros((m,), bool), loop_chi2=jnp.zeros((m,), jnp.float32),
         ranges=jnp.zeros((n, beams), jnp.float16),
-        drift_cov=jnp.zeros((3, 3), jnp.float32), search_cov=jnp.zeros((3, 3), jnp.float32),
+        search_cov=jnp.zeros((3, 3), jnp.float32),
         keyframe_drift=jnp.zeros((n, 3, 3), jnp.float32), drift_from=jnp.int32(0),
         closed_at=jnp.full((2,), jnp.nan, jnp.float32),
         linked_at=jnp.full((2,), jnp.nan, jnp.float32),

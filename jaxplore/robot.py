@@ -335,14 +335,13 @@ def _slam_front(config, world, params, graph, belief, scan, offsets, pose, pose_
   edge_cov = jnp.where(accepted, fused_cov, acc_cov + floor)
   info = slam_model.information(slam_model.in_frame(edge_cov, previous[2]))
   # The estimate's uncertainty since the last closure (it gates the loop closures).
-  drift_cov = jnp.where(new, slam_model.drift(params, graph, pose_est, acc_cov + floor,
-                                              match.cov, accepted), graph.drift_cov)
+  drift_cov = slam_model.drift(params, graph, pose_est, acc_cov + floor, match.cov, accepted)
   keyframe_drift = graph.keyframe_drift.at[jnp.where(new, graph.n_nodes, n_cap)].set(
       drift_cov, mode="drop")
   # The loop search's window: the edges compounded as if independent (Li Eq 17), a bound.
   j1, _ = motion.compounding_jacobians(previous, pose_est)
   search_cov = jnp.where(new, j1 @ graph.search_cov @ j1.T + edge_cov, graph.search_cov)
-  graph = graph.replace(acc_pose=acc_pose, acc_cov=acc_cov, drift_cov=drift_cov,
+  graph = graph.replace(acc_pose=acc_pose, acc_cov=acc_cov,
                         search_cov=search_cov, keyframe_drift=keyframe_drift,
                         matches_rejected=(graph.matches_rejected +
                                           (new & ~accepted).astype(jnp.int32)))

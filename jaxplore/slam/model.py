@@ -218,6 +218,13 @@ def register(config, params, logodds, origin, points, valid, prior, odometry_cov
 # --- the graph -----------------------------------------------------------------------------------
 
 
+def current_drift(graph: PoseGraph):
+  """The newest keyframe's uncertainty since the last loop closure or near link (:func:`drift`):
+  it gates the closures (:func:`close_loop`)."""
+  assert graph.keyframe_drift is not None  # the scan_matching graph's
+  return graph.keyframe_drift[jnp.maximum(graph.n_nodes - 1, 0)]
+
+
 def drift(params, graph: PoseGraph, pose, odometry_cov, match_cov, matched):
   """The uncertainty of a new keyframe at ``pose`` (world frame) since the last loop closure or
   near link. ``odometry_cov``: the odometry's since the previous keyframe; ``match_cov``: the
@@ -237,7 +244,6 @@ def drift(params, graph: PoseGraph, pose, odometry_cov, match_cov, matched):
   variance large) it grows with the odometry, keyframe by keyframe.
   """
   assert graph.keyframe_drift is not None and graph.drift_from is not None  # scan_matching's
-  assert graph.drift_cov is not None
   i = graph.n_nodes
   last = jnp.maximum(i - 1, 0)
   oldest_local = jnp.floor(i.astype(jnp.float32) - params.loop_min_age).astype(jnp.int32) + 1
@@ -247,7 +253,7 @@ def drift(params, graph: PoseGraph, pose, odometry_cov, match_cov, matched):
     j1, _ = motion.compounding_jacobians(graph.poses[k], pose)
     return j1 @ cov @ j1.T + increment_cov
 
-  predicted = compounded(last, graph.drift_cov, odometry_cov)
+  predicted = compounded(last, graph.keyframe_drift[last], odometry_cov)
   anchored = compounded(anchor, graph.keyframe_drift[anchor], match_cov)
   _, fused = motion.relocalise(pose, predicted, pose, anchored)
   return jnp.where(matched, fused, predicted)
@@ -257,10 +263,9 @@ def restart_drift(graph: PoseGraph, where, i, cov) -> PoseGraph:
   """Where ``where``: the drift counted from keyframe ``i`` again, with ``cov`` its uncertainty
   (0 after a loop closure, a near link's own covariance after a link)."""
   assert graph.keyframe_drift is not None and graph.drift_from is not None  # scan_matching's
-  assert graph.drift_cov is not None and graph.search_cov is not None
+  assert graph.search_cov is not None
   n_cap = graph.poses.shape[0]
   return graph.replace(
-      drift_cov=jnp.where(where, cov, graph.drift_cov),
       search_cov=jnp.where(where, cov, graph.search_cov),
       drift_from=jnp.where(where, i, graph.drift_from),
       keyframe_drift=graph.keyframe_drift.at[jnp.where(where, i, n_cap)].set(cov, mode="drop"))
@@ -372,8 +377,7 @@ def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points,
   drawn from those older keyframes, so the search is the front end's (a window of three
   standard deviations of the drift since the closure, at most ``slam_search_m``) and the match
   is accepted at a response of ``link_min_response``."""
-  assert graph.truth is not None and graph.drift_cov is not None  # the scan_matching graph's
-  assert graph.search_cov is not None
+  assert graph.truth is not None and graph.search_cov is not None  # the scan_matching graph's
   sz = sizes(config)
   occupied, corner = local_map(graph, ranges, candidates, ok, offsets, config.res, pose[:2],
                                sz.loop_crop, origin)
@@ -400,7 +404,7 @@ def close_loop(config, params, graph: PoseGraph, ranges, i, pose, truth, points,
   # alike rooms a few metres apart otherwise make a false closure.
   innovation = m.pose - pose
   innovation = innovation.at[2].set(motion.wrap_angle(innovation[2]))
-  gate = innovation @ linalg.inv3(graph.drift_cov + m.cov) @ innovation
+  gate = innovation @ linalg.inv3(current_drift(graph) + m.cov) @ innovation
   # A best pose on the search window's outermost candidates is no peak: the scan fits better
   # still beyond the window, and on willow such closures turned the robot by 20+ degrees.
   inner = (config.loop_steps - 0.5) / config.loop_steps

@@ -52,7 +52,7 @@ def chain(poses, matched, match_cov, restarts, jit):
     cov = model.drift(params, graph, pose, jnp.asarray(ODOMETRY, jnp.float32),
                       jnp.asarray(match_cov, jnp.float32), matched)
     i = graph.n_nodes
-    graph = graph.replace(drift_cov=cov, keyframe_drift=graph.keyframe_drift.at[i].set(cov))
+    graph = graph.replace(keyframe_drift=graph.keyframe_drift.at[i].set(cov))
     graph = model.add_keyframe(graph, jnp.bool_(True), pose, pose, jnp.eye(3))
     return model.restart_drift(graph, restart, i, restart_cov)
 
@@ -63,7 +63,7 @@ def chain(poses, matched, match_cov, restarts, jit):
     graph = add(graph, jnp.asarray(poses[i], jnp.float32), jnp.bool_(matched[i]),
                 jnp.bool_(restart is not None),
                 jnp.asarray(np.zeros((3, 3)) if restart is None else restart, jnp.float32))
-    drifts.append(np.asarray(graph.drift_cov))
+    drifts.append(np.asarray(model.current_drift(graph)))
   return np.stack(drifts), graph
 
 

@@ -96,7 +96,8 @@ def close(setup, occ, error_x, link=False, **params_changes):
   drift = jnp.diag(jnp.array([0.3 ** 2, 0.3 ** 2, math.radians(3.0) ** 2], jnp.float32))
   graph = posegraph.init(poses[0], 32, 4, N_BEAMS).replace(
       poses=jnp.asarray(poses), truth=jnp.asarray(truths), n_nodes=jnp.int32(n),
-      drift_cov=drift, search_cov=drift)
+      search_cov=drift)
+  graph = graph.replace(keyframe_drift=graph.keyframe_drift.at[n - 1].set(drift))
   result = closure(params, graph, jnp.asarray(ranges), jnp.asarray(estimate, jnp.float32),
                    jnp.asarray(truth, jnp.float32), jnp.asarray(ranges[n - 1]),
                    jnp.bool_(link))
