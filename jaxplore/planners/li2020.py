@@ -548,6 +548,14 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
   """
   if block < 1:
     raise ValueError(f"block must be >= 1, got {block}")
+  pad, framed_gain, clear, corners = sight_fields(gains, occupied, radius)
+  return _visible_sums(pad, framed_gain, clear, corners, radius, block)
+
+
+def _visible_sums(pad, framed_gain, clear, corners, radius: float, block: int):
+  """:func:`visible_gains` from :func:`sight_fields`' framed fields, for the viewpoints ``pad``
+  cells inside their frame (a crop of the framed fields gives a window of viewpoints:
+  :func:`windowed_sums`)."""
   steps, counts, rim, rim_counts = sight_levels(radius)
   n_groups, n_depth, width = steps.shape[:3]
   slots = -(-width // block) * block
@@ -557,8 +565,8 @@ def visible_gains(gains, occupied, radius: float, block: int = 1):
   if rim.shape[2] % block:
     rim = np.pad(rim, [(0, 0), (0, 0), (0, -rim.shape[2] % block), (0, 0)])
   steps, counts, rim, rim_counts = (jnp.asarray(a) for a in (steps, counts, rim, rim_counts))
-  c, h, w = gains.shape
-  pad, framed_gain, clear, corners = sight_fields(gains, occupied, radius)
+  h, w = framed_gain.shape[1] - 2 * pad, framed_gain.shape[2] - 2 * pad
+  gains = framed_gain[:, pad:pad + h, pad:pad + w]
 
   def seen_at(parent_masks, step):
     """The mask of the offset of ``step``: its parent's, unless the step squeezes diagonally
@@ -731,13 +739,21 @@ def beam_gains(gains, occupied, radius: float, block: int = 1):
   """
   if block < 1:
     raise ValueError(f"block must be >= 1, got {block}")
+  pad, framed_gain, clear, corners = sight_fields(gains, occupied, radius)
+  return _beam_sums(pad, framed_gain, clear, corners, radius, block)
+
+
+def _beam_sums(pad, framed_gain, clear, corners, radius: float, block: int):
+  """:func:`beam_gains` from :func:`sight_fields`' framed fields (``corners`` unused), for the
+  viewpoints ``pad`` cells inside their frame (:func:`windowed_sums`)."""
+  del corners
   offsets, lengths, owned, own_counts, rim, rim_counts = beam_table(radius)
   pad_to = lambda a: np.pad(a, [(0, 0), (0, 0), (0, -a.shape[2] % block)] + [(0, 0)] * (a.ndim - 3))
   offsets, lengths, owned, own_counts, rim, rim_counts = (
       jnp.asarray(a) for a in (offsets, lengths, pad_to(owned), own_counts, pad_to(rim),
                                rim_counts))
-  c, h, w = gains.shape
-  pad, framed_gain, clear, _ = sight_fields(gains, occupied, radius)
+  h, w = framed_gain.shape[1] - 2 * pad, framed_gain.shape[2] - 2 * pad
+  gains = framed_gain[:, pad:pad + h, pad:pad + w]
 
   def window(field, at):
     return jax.lax.dynamic_slice(field, (0, at[0] + pad, at[1] + pad), field.shape[:1] + (h, w))
@@ -782,6 +798,102 @@ def beam_gains(gains, occupied, radius: float, block: int = 1):
   crescent = jnp.zeros((8,) + gains.shape, gains.dtype)
   # Every cell sees itself (as visible_gains' centre).
   return jax.lax.fori_loop(0, offsets.shape[0], group, (gains, crescent))
+
+
+# The viewpoint windows of windowed_sums, as fractions of each side of the grid (the grid itself
+# is the last), and the work (viewpoints x disc offsets) below which the grid alone is used:
+# each window is one more compiled copy of the sums' loop. Half of each side ran li2020 1.35x
+# faster over the first 300 steps on lab (64 robots) and 1.06-1.08x over 1,500-2,000 steps (lab,
+# building); a second window at three quarters added 1-2 % (experiments/results/
+# bench_planner_cost_cpu.md).
+SUM_WINDOW_FRACTIONS = (0.5,)
+SUM_WINDOW_MIN_WORK = 5e7
+
+
+def sum_windows(height: int, width: int, radius: float) -> tuple[tuple[int, int], ...]:
+  """The viewpoint windows :func:`windowed_sums` chooses from, smallest first, the grid last:
+  :data:`SUM_WINDOW_FRACTIONS` of each side, rounded up to 8 cells; the grid alone where the sums
+  are cheap (below :data:`SUM_WINDOW_MIN_WORK`)."""
+  if height * width * len(disc_offsets(radius)) < SUM_WINDOW_MIN_WORK:
+    return ((height, width),)
+  side = lambda f, n: min(n, 8 * math.ceil(f * n / 8))
+  sizes = {(side(f, height), side(f, width)) for f in SUM_WINDOW_FRACTIONS}
+  return tuple(sorted(sizes - {(height, width)})) + ((height, width),)
+
+
+def sum_window(gains, needed, radius: float, windows):
+  """Which of ``windows`` :func:`windowed_sums` computes on, and where: (its index, the first
+  row and column of the needed viewpoints (bool[H, W]) within ``R_e`` (the sums' frame, ``pad``
+  cells) rows and columns of a cell with a gain (f32[C, H, W] not 0); 0 when there are none)."""
+  _, h, w = gains.shape
+  pad = int(math.floor(radius)) + 1
+
+  def span(rows, gain_rows, n):
+    near = jnp.convolve(gain_rows.astype(jnp.float32), jnp.ones(2 * pad + 1), mode="same") > 0
+    keep = rows & near
+    first, last = jnp.argmax(keep), n - 1 - jnp.argmax(keep[::-1])
+    return jnp.where(jnp.any(keep), first, 0), jnp.where(jnp.any(keep), last, 0)
+
+  has_gain = jnp.any(gains != 0, axis=0)
+  r0, r1 = span(jnp.any(needed, 1), jnp.any(has_gain, 1), h)
+  c0, c1 = span(jnp.any(needed, 0), jnp.any(has_gain, 0), w)
+  level = sum(((r1 - r0 + 1 > wh) | (c1 - c0 + 1 > ww)).astype(jnp.int32)
+              for wh, ww in windows[:-1])
+  return jnp.int32(level), r0, c0
+
+
+def windowed_sums(sums, gains, occupied, needed, radius: float, block: int, windows=None):
+  """:func:`beam_gains` (``sums=_beam_sums``) or :func:`visible_gains` (``_visible_sums``),
+  exact at the viewpoints ``needed`` (bool[H, W]), computed on the smallest of ``windows``
+  (:func:`sum_windows` unless given) that holds every needed viewpoint whose disc holds a gain.
+  Elsewhere the result is 0.
+
+  The sums cost the same per viewpoint wherever it is, and a plan reads them only at the nodes
+  of its shortest-path tree: early in an episode, when the known free space is a corner of the
+  grid, and wherever the gains lie in a corner, most of the grid's sums are never read. A
+  needed viewpoint outside the window has no gain within ``R_e`` rows or columns: its sums are 0.
+  Inside, the window's sums read the same cells in the same order as the grid's: the same
+  numbers, bit for bit.
+
+  The window is chosen by a ``lax.switch``; under ``vmap`` (a chunk of robots planned together)
+  the chunk takes the window of the robot that needs the largest (a custom batching rule: a
+  batched switch would run every window), each robot its own corner of it.
+  """
+  c, h, w = gains.shape
+  windows = sum_windows(h, w, radius) if windows is None else tuple(windows)
+  fields = sight_fields(gains, occupied, radius)
+  pad = fields[0]
+  if len(windows) == 1:
+    return sums(pad, fields[1], fields[2], fields[3], radius, block)
+  level, r0, c0 = sum_window(gains, needed, radius, windows)
+
+  def in_window(size, framed, r0, c0):
+    wh, ww = size
+    top, left = jnp.minimum(r0, h - wh), jnp.minimum(c0, w - ww)
+    crop = lambda a: jax.lax.dynamic_slice(
+        a, (0,) * (a.ndim - 2) + (top, left), a.shape[:-2] + (wh + 2 * pad, ww + 2 * pad))
+    full, crescent = sums(pad, *(crop(a) for a in framed), radius, block)
+    place = lambda a, shape: jax.lax.dynamic_update_slice(
+        jnp.zeros(shape, a.dtype), a, (0,) * (a.ndim - 2) + (top, left))
+    return place(full, (c, h, w)), place(crescent, (8, c, h, w))
+
+  branches = [functools.partial(in_window, size) for size in windows]
+
+  @jax.custom_batching.custom_vmap
+  def chosen(level, framed, r0, c0):
+    return jax.lax.switch(level, branches, framed, r0, c0)
+
+  @chosen.def_vmap
+  def chosen_batched(axis_size, in_batched, level, framed, r0, c0):
+    level_batched, framed_batched, r0_batched, c0_batched = in_batched
+    largest = jnp.max(level) if level_batched else level
+    axes = (jax.tree.map(lambda b: 0 if b else None, framed_batched),
+            0 if r0_batched else None, 0 if c0_batched else None)
+    batched = [jax.vmap(branch, in_axes=axes, axis_size=axis_size) for branch in branches]
+    out = jax.lax.switch(largest, batched, framed, r0, c0)
+    return out, jax.tree.map(lambda _: True, out)
+
+  return chosen(level, fields[1:], r0, c0)
 
 
 def path_gain(gain_grid, cells, length, radius: float):
@@ -937,13 +1049,18 @@ def path_gains(config, view, robot, pred, gains, visible_sums=None):
     # Each cell once per path, counted where it enters the region of a waypoint (seen from that
     # waypoint), or where it leaves it (seen from the waypoint it leaves), whichever sum is
     # larger; see visible_gains and Settings.region.
-    seen_sums = ((visible_sums or visible_gains) if settings.region == "visible" else
-                 beam_gains)
-    full, crescent = seen_sums(gains, view.occupied, radius, VISIBLE_BLOCK[config.strategy])
-    full, crescent = full.reshape(n_channels, -1), crescent.reshape(8, n_channels, -1)
     code = (d_row + 1) * 3 + (d_col + 1)  # index into NEIGHBOURS_8 after removing (0, 0)
     toward, away = jnp.where(code > 4, code - 1, code), jnp.where(code < 4, 7 - code, 8 - code)
     in_tree = has_parent & (idx != root)
+    block = VISIBLE_BLOCK[config.strategy]
+    if visible_sums is not None and settings.region == "visible":
+      full, crescent = visible_sums(gains, view.occupied, radius, block)
+    else:
+      # Read at the tree's nodes only (the root's and each node's parent's are nodes too).
+      needed = (in_tree | (idx == root)).reshape(h, w)
+      sums_of = _visible_sums if settings.region == "visible" else _beam_sums
+      full, crescent = windowed_sums(sums_of, gains, view.occupied, needed, radius, block)
+    full, crescent = full.reshape(n_channels, -1), crescent.reshape(8, n_channels, -1)
     enter = jnp.where(in_tree, crescent[toward, :, idx].T, 0.0)
     enter = jnp.where(idx == root, full[:, root][:, None], enter)
     leave = jnp.where(in_tree, crescent[away, :, parent].T, 0.0)

@@ -688,13 +688,13 @@ def test_visible_gains_in_blocks_are_the_sums_one_offset_at_a_time_bit_for_bit(b
     li2020.visible_gains(*args, 0)
 
 
-@pytest.mark.parametrize("region, sums", [("beams", "beam_gains"), ("visible", "visible_gains")])
+@pytest.mark.parametrize("region, sums", [("beams", "_beam_sums"), ("visible", "_visible_sums")])
 def test_the_planner_takes_the_visible_gain_blocks_of_the_engines_strategy(monkeypatch, region,
                                                                           sums):
   """Traced only: li2020 asks the region's sums for VISIBLE_BLOCK[strategy]."""
   blocks = []
   seen_sums = getattr(li2020, sums)
-  monkeypatch.setattr(li2020, sums, lambda *args: blocks.append(args[3]) or seen_sums(*args))
+  monkeypatch.setattr(li2020, sums, lambda *args: blocks.append(args[5]) or seen_sums(*args))
   params = params_for()
   state, l, entropy = belief(5)
   view = make_view(l, entropy, params)
@@ -707,6 +707,89 @@ def test_the_planner_takes_the_visible_gain_blocks_of_the_engines_strategy(monke
 
 
 BEAMS = jax.jit(li2020.beam_gains, static_argnums=(2, 3))
+
+
+WINDOWS = ((16, 24), (24, 32), (40, 48))
+
+
+def test_sum_windows_are_sized_from_the_grid_and_only_where_the_sums_are_dear():
+  assert li2020.sum_windows(40, 48, 6.0) == ((40, 48),)
+  windows = li2020.sum_windows(130, 170, 57.0)
+  assert windows == ((72, 88), (130, 170))  # half of each side rounded up to 8 cells; the grid
+
+
+def windowed_cases():
+  """(gains, occupied, needed, expected window) on a 40 x 48 grid, R_e 6 cells (pad 7)."""
+  rng = np.random.default_rng(21)
+  occupied = rng.uniform(0, 1, (40, 48)) < 0.12
+  everywhere = rng.uniform(0, 1, (2, 40, 48)).astype(np.float32)
+  box = lambda r0, r1, c0, c1: np.pad(np.ones((r1 - r0, c1 - c0), bool),
+                                       [(r0, 40 - r1), (c0, 48 - c1)])
+  corner = everywhere * box(32, 40, 0, 8)  # gains in the bottom-left corner only: 15 x 15 + pad
+  return [
+      (everywhere, occupied, box(3, 19, 5, 29), 0),  # exactly the smallest window
+      (everywhere, occupied, box(3, 20, 5, 29), 1),  # a row more
+      (everywhere, occupied, box(30, 40, 20, 48), 1),  # against the bottom-right border
+      (everywhere, occupied, box(0, 40, 0, 48), 2),
+      (everywhere, occupied, box(0, 2, 0, 2) | box(38, 40, 46, 48), 2),  # two far corners
+      (everywhere, occupied, np.zeros((40, 48), bool), 0),
+      (corner, occupied, box(0, 40, 0, 48), 0),  # the window of the gains' rows and columns
+      (np.zeros_like(everywhere), occupied, box(0, 40, 0, 48), 0),
+  ]
+
+
+def test_a_plan_on_a_window_of_the_sums_is_the_plan_on_the_grid(monkeypatch):
+  """A robot in a small room (its shortest-path tree within the smallest window): the plan with
+  windows (forced on this small grid) is the plan without, bit for bit."""
+  state = np.ones((H, W), int)  # 0 free, 1 occupied, 2 unknown
+  state[2:10, 2:13] = 0
+  state[3:7, 13:16] = 2  # a pocket of unknown cells east of the room
+  l = np.where(state == 0, -3.0, np.where(state == 1, 3.0, 0.0)).astype(np.float32)
+  entropy = np.where(state == 2, math.log(2), 0.3).astype(np.float32)
+  params = params_for()
+  view = make_view(l, entropy, params)
+  memory = memory_for(CONFIG, params, entropy)
+  plans = []
+  for min_work in (math.inf, 0.0):
+    monkeypatch.setattr(li2020, "SUM_WINDOW_MIN_WORK", min_work)
+    assert len(li2020.sum_windows(H, W, 3.0)) == (1 if min_work else 2)
+    plan = jax.jit(lambda view, robot, memory: li2020.plan_li2020(  # a new trace each time
+        CONFIG, view, robot, params, jax.random.PRNGKey(0), memory)[0])
+    plans.append(jax.tree.map(np.asarray, plan(view, robot_at((5, 6)), memory)))
+  assert plans[0].valid and plans[0].gain > 0
+  for got, want in zip(jax.tree.leaves(plans[1]), jax.tree.leaves(plans[0])):
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["eager", "jit"])
+@pytest.mark.parametrize("region", ["beams", "visible"])
+def test_windowed_sums_are_the_grids_at_the_needed_viewpoints_bit_for_bit(region, transform):
+  """On the smallest window that holds the needed viewpoints with a gain within R_e, the sums
+  at every needed viewpoint are the grid's bit for bit, for a robot alone and for the robots of
+  a vmapped chunk (each its own needs, the chunk on its largest window)."""
+  grid_sums = li2020.beam_gains if region == "beams" else li2020.visible_gains
+  sums = li2020._beam_sums if region == "beams" else li2020._visible_sums
+  windowed = transform(lambda gains, occupied, needed: li2020.windowed_sums(
+      sums, gains, occupied, needed, 6.0, 2, WINDOWS))
+  window = transform(lambda gains, needed: li2020.sum_window(gains, needed, 6.0, WINDOWS)[0])
+  cases = windowed_cases()
+  expected = []
+  for gains, occupied, needed, level in cases:
+    assert int(window(jnp.asarray(gains), jnp.asarray(needed))) == level
+    full, crescent = grid_sums(jnp.asarray(gains), jnp.asarray(occupied), 6.0, 2)
+    expected.append((np.where(needed, full, 0), np.where(needed[None], crescent, 0)))
+    got_full, got_crescent = windowed(jnp.asarray(gains), jnp.asarray(occupied),
+                                      jnp.asarray(needed))
+    np.testing.assert_array_equal(np.where(needed, got_full, 0), expected[-1][0])
+    np.testing.assert_array_equal(np.where(needed[None], got_crescent, 0), expected[-1][1])
+  stack = lambda k: jnp.asarray(np.stack([case[k] for case in cases]))
+  got_full, got_crescent = jax.vmap(windowed)(stack(0), stack(1), stack(2))
+  for (_, _, needed, _), (full, crescent), got, got_c in zip(cases, expected, got_full,
+                                                              got_crescent):
+    np.testing.assert_array_equal(np.where(needed, got, 0), full)
+    np.testing.assert_array_equal(np.where(needed[None], got_c, 0), crescent)
+
+
 
 
 @pytest.mark.parametrize("radius", [3.0, 5.5])
