@@ -761,33 +761,46 @@ def test_a_plan_on_a_window_of_the_sums_is_the_plan_on_the_grid(monkeypatch):
     np.testing.assert_array_equal(got, want)
 
 
-@pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["eager", "jit"])
-@pytest.mark.parametrize("region", ["beams", "visible"])
-def test_windowed_sums_are_the_grids_at_the_needed_viewpoints_bit_for_bit(region, transform):
-  """On the smallest window that holds the needed viewpoints with a gain within R_e, the sums
-  at every needed viewpoint are the grid's bit for bit, for a robot alone and for the robots of
-  a vmapped chunk (each its own needs, the chunk on its largest window)."""
-  grid_sums = li2020.beam_gains if region == "beams" else li2020.visible_gains
+GRID_SUMS = {"beams": BEAMS, "visible": jax.jit(li2020.visible_gains, static_argnums=(2, 3))}
+
+
+def check_windowed(region, transform, cases):
+  """The windowed sums at every needed viewpoint are the grid's, bit for bit, and the window
+  taken is the smallest that holds the needed viewpoints with a gain within R_e."""
   sums = li2020._beam_sums if region == "beams" else li2020._visible_sums
   windowed = transform(lambda gains, occupied, needed: li2020.windowed_sums(
       sums, gains, occupied, needed, 6.0, 2, WINDOWS))
   window = transform(lambda gains, needed: li2020.sum_window(gains, needed, 6.0, WINDOWS)[0])
-  cases = windowed_cases()
   expected = []
   for gains, occupied, needed, level in cases:
     assert int(window(jnp.asarray(gains), jnp.asarray(needed))) == level
-    full, crescent = grid_sums(jnp.asarray(gains), jnp.asarray(occupied), 6.0, 2)
+    full, crescent = GRID_SUMS[region](jnp.asarray(gains), jnp.asarray(occupied), 6.0, 2)
     expected.append((np.where(needed, full, 0), np.where(needed[None], crescent, 0)))
     got_full, got_crescent = windowed(jnp.asarray(gains), jnp.asarray(occupied),
                                       jnp.asarray(needed))
     np.testing.assert_array_equal(np.where(needed, got_full, 0), expected[-1][0])
     np.testing.assert_array_equal(np.where(needed[None], got_crescent, 0), expected[-1][1])
+  return windowed, expected
+
+
+# The visible region (not the default) shares the windowing with the beams; its check is slow.
+@pytest.mark.parametrize("region", ["beams", pytest.param("visible", marks=pytest.mark.slow)])
+def test_windowed_sums_are_the_grids_at_the_needed_viewpoints_bit_for_bit(region):
+  """Jitted, for a robot alone and for the robots of a vmapped chunk (each its own needs, the
+  chunk on its largest window)."""
+  cases = windowed_cases()
+  windowed, expected = check_windowed(region, jax.jit, cases)
   stack = lambda k: jnp.asarray(np.stack([case[k] for case in cases]))
   got_full, got_crescent = jax.vmap(windowed)(stack(0), stack(1), stack(2))
   for (_, _, needed, _), (full, crescent), got, got_c in zip(cases, expected, got_full,
                                                               got_crescent):
     np.testing.assert_array_equal(np.where(needed, got, 0), full)
     np.testing.assert_array_equal(np.where(needed[None], got_c, 0), crescent)
+
+
+def test_windowed_sums_eager_on_the_smallest_window_and_on_the_grid():
+  cases = windowed_cases()
+  check_windowed("beams", lambda f: f, [cases[0], cases[3]])
 
 
 
