@@ -805,7 +805,7 @@ def _beam_sums(pad, framed_gain, clear, corners, radius: float, block: int):
 # each window is one more compiled copy of the sums' loop. Half of each side ran li2020 1.35x
 # faster over the first 300 steps on lab (64 robots) and 1.06-1.08x over 1,500-2,000 steps (lab,
 # building); a second window at three quarters added 1-2 % (experiments/results/
-# bench_planner_cost_cpu.md).
+# bench_li2020_windows_cpu.md).
 SUM_WINDOW_FRACTIONS = (0.5,)
 SUM_WINDOW_MIN_WORK = 5e7
 
@@ -822,9 +822,13 @@ def sum_windows(height: int, width: int, radius: float) -> tuple[tuple[int, int]
 
 
 def sum_window(gains, needed, radius: float, windows):
-  """Which of ``windows`` :func:`windowed_sums` computes on, and where: (its index, the first
-  row and column of the needed viewpoints (bool[H, W]) within ``R_e`` (the sums' frame, ``pad``
-  cells) rows and columns of a cell with a gain (f32[C, H, W] not 0); 0 when there are none)."""
+  """Which of ``windows`` :func:`windowed_sums` computes on, and where: (its index, its first
+  row, its first column before it is moved inside the grid).
+
+  The window must hold the rows (and columns) that hold a needed viewpoint (``needed``,
+  bool[H, W]) and lie within the sums' frame (``pad`` = ⌊R_e⌋ + 1 cells) of a row (column) with
+  a gain (``gains`` f32[C, H, W] not 0); other viewpoints' sums are 0 or not read. With none, the
+  smallest window at the corner."""
   _, h, w = gains.shape
   pad = int(math.floor(radius)) + 1
 
