@@ -7,8 +7,7 @@ replans every few steps) and every step also pays the motion, the lidar and the 
 runs each (planner, SLAM model, batch) as a user would, ``jaxplore.run`` on the default devices
 for the first ``--steps`` steps from the same seed (0: the run's own budget, every episode to
 its end), one after the other in one process, and reports robot-steps per second with compile
-time apart: all robot-steps, and those of robots still exploring (a robot whose episode ended
-costs little; planners that end sooner would otherwise look cheaper per step).
+time apart (the steps of robots still exploring: a robot whose episode ended counts no more).
 
 Usage:
   python experiments/bench_planner_cost.py --world lab --robots 64,256 --steps 300 \\
@@ -52,16 +51,12 @@ def main(argv=None):
                               max_steps=args.steps or None, slam=slam, progress=False,
                               quiet=True)
         t = result.timing
-        active = int(result.episodes["steps"].sum())
         rows.append((robots, slam, planner, t["compile_s"], t["run_s"], t["robot_steps"],
-                     t["robot_steps_per_s"], active, active / t["run_s"],
-                     time.perf_counter() - t0))
+                     t["robot_steps_per_s"], time.perf_counter() - t0))
         print(f"{robots:4d} {slam:14s} {planner:17s} compile {t['compile_s']:6.1f} s  run "
-              f"{t['run_s']:6.1f} s  {t['robot_steps_per_s']:8.0f} robot-steps/s, "
-              f"{active / t['run_s']:8.0f} exploring", flush=True)
+              f"{t['run_s']:6.1f} s  {t['robot_steps_per_s']:8.0f} robot-steps/s", flush=True)
   first = args.planners.split(",")[0]
   base = {(r[0], r[1]): r[6] for r in rows if r[2] == first}
-  base_active = {(r[0], r[1]): r[8] for r in rows if r[2] == first}
   devices = jax.devices()
   command = sys.argv[1:] if argv is None else argv
   span = f"first {args.steps} steps" if args.steps else "whole episodes"
@@ -71,15 +66,12 @@ def main(argv=None):
            f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores); "
            f"{time.strftime('%Y-%m-%d %H:%M')}. One process, the runs one after the other.", "",
            "| robots | SLAM | planner | compile s | run s | robot-steps | robot-steps/s | "
-           f"time per robot-step vs {first} (same SLAM) | exploring robot-steps | "
-           "exploring robot-steps/s | time per exploring robot-step vs the same |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
-  for robots, slam, planner, compile_s, run_s, steps, rate, active, active_rate, _ in rows:
-    ratio, ratio_active = base.get((robots, slam)), base_active.get((robots, slam))
+           f"time per robot-step vs {first} (same SLAM) |",
+           "|---|---|---|---|---|---|---|---|"]
+  for robots, slam, planner, compile_s, run_s, steps, rate, _ in rows:
+    ratio = base.get((robots, slam))
     lines.append(f"| {robots} | {slam} | {planner} | {compile_s:.1f} | {run_s:.1f} | {steps} | "
-                 f"{rate:,.0f} | {ratio / rate if ratio else float('nan'):.2f}x | {active} | "
-                 f"{active_rate:,.0f} | "
-                 f"{ratio_active / active_rate if ratio_active else float('nan'):.2f}x |")
+                 f"{rate:,.0f} | {ratio / rate if ratio else float('nan'):.2f}x |")
   text = "\n".join(lines) + "\n"
   print(text)
   if args.out:
