@@ -206,7 +206,9 @@ def main(argv=None):
     ax.set_title(world)
     ax.set_xlabel("distance (m)")
   axes[0][0].set_ylabel("map entropy (nats)")
-  max(axes[0], key=lambda ax: len(ax.get_legend_handles_labels()[0])).legend()
+  fullest = max(axes[0], key=lambda ax: len(ax.get_legend_handles_labels()[0]))
+  if fullest.get_legend_handles_labels()[0]:
+    fullest.legend()
   fig.suptitle("Figure 7: map entropy vs distance (mean, 10–90 % band over seeds)")
   fig.tight_layout()
   fig.savefig(out.parent / f"li2020_figure7{suffix}.png", dpi=110)
