@@ -81,8 +81,15 @@ def tables(config: SimConfig, grid: GridMap, world: sim.World, state, records,
   return pd.DataFrame(rows), curves
 
 
+# A robot whose keyframes are this far off the truth (RMS, after alignment) has a map that no
+# longer matches the world: walls drawn metres off, frontiers where there are none.
+LOST_TRACK_ATE_M = 1.0
+
+
 def summary_table(episodes: pd.DataFrame) -> str:
-  """A short text table: reasons, and mean ± std of the headline metrics."""
+  """A short text table: reasons, and mean ± std of the headline metrics, and a warning when the
+  pose graph's loop list filled up or a robot's SLAM lost track (ATE over
+  :data:`LOST_TRACK_ATE_M`)."""
   lines = []
   reasons = episodes["reason"].value_counts().to_dict()
   lines.append("termination: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
@@ -102,6 +109,13 @@ def summary_table(episodes: pd.DataFrame) -> str:
                  f"{len(dropped)} robots: {dropped.mean():.4g} loop closures dropped a robot on "
                  f"average (max {int(dropped.max())}), never added to the graph (a larger "
                  f"--graph-loops keeps them)")
+  ate = episodes["ate_m"].astype(float) if "ate_m" in episodes else pd.Series(dtype=float)
+  lost = ate > LOST_TRACK_ATE_M
+  if lost.any():
+    lines.append(f"warning: the SLAM lost track on {int(lost.sum())} of {len(ate)} robots (ATE "
+                 f"above {LOST_TRACK_ATE_M:g} m, worst {ate.max():.3g} m): their maps no longer "
+                 f"match the world, so their coverage and distance say little of the planner (a "
+                 f"scan match is accurate to about half a cell: coarse cells drift most)")
   return "\n".join(lines)
 
 

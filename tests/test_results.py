@@ -178,3 +178,15 @@ def test_the_summary_warns_when_loop_closures_were_dropped():
   assert "--graph-loops" in text
   assert "warning" not in results.summary_table(episodes.assign(loops_dropped=0))
   assert "warning" not in results.summary_table(episodes.drop(columns="loops_dropped"))
+
+
+def test_the_summary_warns_when_a_robots_slam_lost_track():
+  episodes = pd.DataFrame({"reason": ["complete", "exhausted", "exhausted"],
+                           "ate_m": [0.04, 15.8, 1.2]})
+  text = results.summary_table(episodes)
+  assert "SLAM lost track on 2 of 3 robots" in text and "worst 15.8 m" in text
+  assert "lost track" not in results.summary_table(episodes.assign(ate_m=[0.04, 0.9, 1.0]))
+  # the oracle's rows have no ATE (NaN) and no such column at all
+  assert "lost track" not in results.summary_table(episodes.assign(ate_m=float("nan")))
+  assert "lost track" not in results.summary_table(episodes.drop(columns="ate_m"))
+
