@@ -114,8 +114,9 @@ def summary_table(episodes: pd.DataFrame) -> str:
   if lost.any():
     lines.append(f"warning: the SLAM lost track on {int(lost.sum())} of {len(ate)} robots (ATE "
                  f"above {LOST_TRACK_ATE_M:g} m, worst {ate.max():.3g} m): their maps no longer "
-                 f"match the world, so their coverage and distance say little of the planner (a "
-                 f"scan match is accurate to about half a cell: coarse cells drift most)")
+                 f"match the world, so their coverage and distance say little of the planner "
+                 f"(docs/slam.md: cells coarser than 0.2 m, false loop closures on repeated "
+                 f"layouts)")
   return "\n".join(lines)
 
 
