@@ -73,10 +73,10 @@ CODEGEN_FLAG = _codegen_flag()
 
 
 def pytest_collection_modifyitems(items):
-  """The order xdist hands modules out in (``--no-loadscope-reorder``): the smoke test of every
-  planner first (two halves, ~80 s each in a process of their own, one to each worker: last, it
-  kept one worker busy while the other idled), then the modules with most tests first, as
-  xdist's own order was."""
+  """The order xdist hands modules out in (``--no-loadscope-reorder``): the smoke tests first
+  (a minute or more in a process of their own; under ``-m slow`` two halves more, one to each
+  worker: last, they kept one worker busy while the other idled), then the modules with most
+  tests first, as xdist's own order was."""
   sizes: dict = {}
   for item in items:
     sizes[item.module.__name__] = sizes.get(item.module.__name__, 0) + 1

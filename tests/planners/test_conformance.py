@@ -7,6 +7,7 @@ A planner added to the registry is checked here without a line of its own.
 """
 
 import dataclasses
+import re
 
 import chex
 import jax
@@ -115,10 +116,13 @@ def planner(request):
 
 @pytest.fixture(scope="module")
 def batch_plans(planner):
-  """The planner's plans for a vmapped batch of BATCH robots (per_robot), shared by the tests."""
+  """The planner's plans for a vmapped batch of BATCH robots (per_robot), and the text of the
+  program that planned them, shared by the tests."""
   spec, ctx, fn, params, _ = planner
   batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (BATCH,) + jnp.shape(x)), params)
-  return batched, jax.tree.map(np.asarray, jax.jit(jax.vmap(fn))(batched, *inputs(BATCH)))
+  lowered = jax.jit(jax.vmap(fn)).lower(batched, *inputs(BATCH))
+  plans = jax.tree.map(np.asarray, lowered.compile()(batched, *inputs(BATCH)))
+  return batched, plans, lowered.as_text()
 
 
 # A planner family's members run the same code with other settings: the suite keeps the fullest
@@ -157,10 +161,20 @@ def test_a_batch_plans_the_same_under_both_strategies(planner, batch_plans):
   """The accelerator's strategy forced on a CPU: ``lockstep`` (shortest paths by relaxation, the
   planner's lockstep paths) plans a vmapped batch bit for bit as ``per_robot`` does."""
   spec, ctx, _, _, _ = planner
-  batched, per_robot = batch_plans
+  batched, per_robot, _ = batch_plans
   lockstep_fn = one_plan(spec, dataclasses.replace(ctx, strategy="lockstep"))
   lockstep = jax.jit(jax.vmap(lockstep_fn))(batched, *inputs(BATCH))
   chex.assert_trees_all_equal(jax.tree.map(np.asarray, lockstep), per_robot)
+
+
+def test_a_batch_calls_no_batched_lapack_kernel(batch_plans):
+  """A batch's plan makes no LAPACK call over a batch of matrices: jaxlib's batched kernels split
+  over XLA:CPU's thread pool and hung runs of a few robots on two host devices (gpbo, ahmed and
+  ags did; :mod:`jaxplore.linalg`). Every planner's batched program is checked here; a run of
+  each on two devices end to end is ``tests/test_smoke.py``."""
+  calls = re.findall(r"custom_call @(lapack_\w+).*?num_batch_dims = \"(\d+)\"", batch_plans[2])
+  assert all(batch_dims == "0" for _, batch_dims in calls), calls
+  assert "func.func public @main" in batch_plans[2]  # the text is a program's
 
 
 def test_changing_a_traced_number_does_not_retrace(planner):
