@@ -155,7 +155,8 @@ class SimConfig:
                               "(correlation_search_space_smear_deviation)", owner="slam",
                               unit="m", static=True, gt=0)
   slam_search_m: float = setting(0.25, "largest half-width of the front end's search (3σ of the "
-                                 "odometry since the last keyframe, at least res)", owner="slam",
+                                 "odometry since the last keyframe, at least res where res is "
+                                 "below this)", owner="slam",
                                  unit="m", static=True, gt=0)
   slam_steps: int = setting(5, "coarse candidates on each side of the prediction in x, y, θ",
                             owner="slam", static=True, ge=1, integer=True)
