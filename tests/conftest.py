@@ -2,6 +2,7 @@
 
 import functools
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -91,6 +92,13 @@ needs_shared_maps = pytest.mark.skipif(
     not SHARED_MAPS.is_dir(),
     reason=f"reads the public maps at {SHARED_MAPS}, beside the checkout (never copied into the "
            f"project); not present here")
+
+def lapack_calls(program_text: str) -> list[tuple[str, str]]:
+  """(kernel, number of batch dimensions) of each LAPACK call in a lowered program's text
+  (``jax.jit(f).lower(...).as_text()``): a batched call deadlocks two host devices
+  (:mod:`jaxplore.linalg`)."""
+  return re.findall(r"custom_call @(lapack_\w+).*?num_batch_dims = \"(\d+)\"", program_text)
+
 
 # Run kernels eagerly and compiled on the same inputs (STYLE.md practice 11).
 EAGER_AND_JIT = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["eager", "jit"])

@@ -1,8 +1,6 @@
 """jaxplore.linalg against NumPy/SciPy, and the shape of its CPU calls: one matrix per LAPACK call
 (a batched call splits over XLA:CPU's thread pool and deadlocks two host devices)."""
 
-import re
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,7 +8,7 @@ import pytest
 import scipy.linalg
 
 from jaxplore import linalg
-from tests.conftest import EAGER_AND_JIT
+from tests.conftest import EAGER_AND_JIT, lapack_calls
 
 
 def _spd(batch=(2, 3), n=5, seed=0):
@@ -45,6 +43,6 @@ def test_a_batch_reaches_lapack_one_matrix_per_call_on_cpu(name):
   args = (m, m) if name == "solve_triangular" else (m,)
   wrapped = (lambda a, b: fn(a, b, lower=True)) if name == "solve_triangular" else fn
   text = jax.jit(jax.vmap(wrapped)).lower(*args).as_text()
-  calls = re.findall(r"custom_call @(lapack_\w+).*?num_batch_dims = \"(\d+)\"", text)
+  calls = lapack_calls(text)
   assert calls, "no LAPACK call found: the test no longer sees what it checks"
   assert all(batch_dims == "0" for _, batch_dims in calls), calls

@@ -189,4 +189,3 @@ def test_the_summary_warns_when_a_robots_slam_lost_track():
   # the oracle's rows have no ATE (NaN) and no such column at all
   assert "lost track" not in results.summary_table(episodes.assign(ate_m=float("nan")))
   assert "lost track" not in results.summary_table(episodes.drop(columns="ate_m"))
-

@@ -7,7 +7,6 @@ A planner added to the registry is checked here without a line of its own.
 """
 
 import dataclasses
-import re
 
 import chex
 import jax
@@ -18,6 +17,7 @@ import pytest
 from jaxplore import mapping, posegraph
 from jaxplore.config import make_params
 from jaxplore.planners import base, planner_names
+from tests.conftest import lapack_calls
 
 H, W, L = 24, 32, 64
 BATCH = 2
@@ -172,7 +172,7 @@ def test_a_batch_calls_no_batched_lapack_kernel(batch_plans):
   over XLA:CPU's thread pool and hung runs of a few robots on two host devices (gpbo, ahmed and
   ags did; :mod:`jaxplore.linalg`). Every planner's batched program is checked here; a run of
   each on two devices end to end is ``tests/test_smoke.py``."""
-  calls = re.findall(r"custom_call @(lapack_\w+).*?num_batch_dims = \"(\d+)\"", batch_plans[2])
+  calls = lapack_calls(batch_plans[2])
   assert all(batch_dims == "0" for _, batch_dims in calls), calls
   assert "func.func public @main" in batch_plans[2]  # the text is a program's
 
