@@ -91,6 +91,9 @@ def main(argv=None):
   parser.add_argument("--variants", default="", help=f"extra rows, comma separated: {', '.join(VARIANTS)}")
   parser.add_argument("--variant-worlds", default=None,
                       help="comma separated worlds the --variants run on (default: every world)")
+  parser.add_argument("--parts-only", action="store_true",
+                      help="build the table from the parts already in the folder and run none "
+                           "(a pair without a part is left out and named)")
   parser.add_argument("--out", default=None,
                       help="parts folder; the table is written beside it as <out>.md "
                       "(default: results/li2020_table1, suffixed _pose_noise and/or _<slam>)")
@@ -148,6 +151,10 @@ def main(argv=None):
               + ("" if part_c.exists() else " (its curves are missing: not in the figures)"),
               flush=True)
         continue
+      if args.parts_only:
+        print(f"{world:12s} {planner:17s} no part {part_e.name}: left out (--parts-only)",
+              flush=True)
+        continue
       t0 = time.perf_counter()
       result = jaxplore.run(world=spec, planner=name, robots=args.seeds, seed=0, preset="li2020",
                             res=res, max_steps=max_steps, progress=False, quiet=True,
@@ -198,17 +205,23 @@ def main(argv=None):
 
   worlds = list(dict.fromkeys(episodes.world))
   fig, axes = plt.subplots(1, len(worlds), figsize=(4.2 * len(worlds), 3.6), squeeze=False)
+  # One colour per planner in every panel (a panel missing a planner's curves shifted the others').
+  cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+  colours = {planner: cycle[i % len(cycle)] for i, planner in enumerate(labels)}
   for ax, world in zip(axes[0], worlds):
     for planner in labels:
       c = curves[(curves.world == world) & (curves.planner == planner)]
       if len(c):
+        ax.set_prop_cycle(color=[colours[planner]])
         plot.spread(ax, c, "distance", "entropy", label=planner)
     ax.set_title(world)
     ax.set_xlabel("distance (m)")
   axes[0][0].set_ylabel("map entropy (nats)")
-  fullest = max(axes[0], key=lambda ax: len(ax.get_legend_handles_labels()[0]))
-  if fullest.get_legend_handles_labels()[0]:
-    fullest.legend()
+  drawn = [planner for planner in labels if (curves.planner == planner).any()]
+  if drawn:
+    from matplotlib.lines import Line2D
+    fullest = max(axes[0], key=lambda ax: len(ax.get_legend_handles_labels()[0]))
+    fullest.legend([Line2D([], [], color=colours[p]) for p in drawn], drawn)
   fig.suptitle("Figure 7: map entropy vs distance (mean, 10–90 % band over seeds)")
   fig.tight_layout()
   fig.savefig(out.parent / f"li2020_figure7{suffix}.png", dpi=110)
