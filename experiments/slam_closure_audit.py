@@ -35,7 +35,7 @@ HERE = Path(__file__).resolve().parent
 SHARED_MAPS = HERE.parent.parent / "shared" / "maps"
 WORLDS = {"willow": str(SHARED_MAPS / "willow.yaml"), "intel": str(SHARED_MAPS / "intel.yaml"),
           "fr_campus": str(SHARED_MAPS / "fr_campus.yaml")}
-RES = {"willow": 0.2, "intel": 0.2, "fr_campus": 0.5}  # fr_campus: Li's table's cells
+RES = {"willow": 0.2, "intel": 0.2, "fr_campus": 0.5}  # fr_campus: the li2020 table's cells
 SD_THRESHOLDS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 1.0)
 CHI2_THRESHOLDS = (3.0, 7.81, 11.34, 16.27, 25.0, 100.0)
 
