@@ -212,8 +212,7 @@ def main(argv=None):
     for planner in labels:
       c = curves[(curves.world == world) & (curves.planner == planner)]
       if len(c):
-        ax.set_prop_cycle(color=[colours[planner]])
-        plot.spread(ax, c, "distance", "entropy", label=planner)
+        plot.spread(ax, c, "distance", "entropy", label=planner, color=colours[planner])
     ax.set_title(world)
     ax.set_xlabel("distance (m)")
   axes[0][0].set_ylabel("map entropy (nats)")

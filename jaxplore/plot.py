@@ -89,9 +89,10 @@ def exploration_graph(ax, nodes, edges, lsr=None, open_bins=None, current=None):
       ax.plot(nodes[current, 0], nodes[current, 1], "o", ms=8, mfc="none", color="tab:purple")
 
 
-def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, label=None):
+def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, label=None,
+           color=None):
   """Mean and 10–90 % band of ``y`` over robots, each robot's curve interpolated on a common ``x``
-  grid (a finished robot holds its last value)."""
+  grid (a finished robot holds its last value); ``color``: the axis's next colour if None."""
   if not len(curves):
     return
   xmax = curves.groupby("robot")[x].max().max()
@@ -102,7 +103,7 @@ def spread(ax, curves: pd.DataFrame, x: str, y: str, grid_points: int = 200, lab
     keep = np.concatenate([[True], np.diff(cx) > 0])
     rows.append(np.interp(xs, cx[keep], cy[keep]))
   ys = np.asarray(rows)
-  line, = ax.plot(xs, ys.mean(0), label=label)
+  line, = ax.plot(xs, ys.mean(0), label=label, color=color)
   if len(ys) > 1:
     ax.fill_between(xs, np.quantile(ys, 0.1, axis=0), np.quantile(ys, 0.9, axis=0), alpha=0.25,
                     color=line.get_color(), lw=0)
